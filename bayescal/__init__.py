@@ -1,0 +1,54 @@
+"""bayescal: Bayesian radiometric calibration of imaging sensors.
+
+Every calibration quantity (per-channel gain, offset, nonlinearity, dark
+signal, the integrating sphere's radiance errors) is a random variable; the
+models are fitted by NUTS, emcee or a Laplace approximation, beside the
+least-squares baseline the calibration literature uses.  See DESIGN.md and
+the README.
+"""
+
+__version__ = "0.1.0"
+
+from ._config import enable_compilation_cache, enable_float64
+
+enable_float64()
+
+from .assemble import CalibrationModel, build_model  # noqa: E402
+from .design import Design, Truth, load_design  # noqa: E402
+from .diagnostics import Diagnostics  # noqa: E402
+from .errors import BayescalError, FitFailedError, FitFailedWarning, SpecError, TableError  # noqa: E402
+from .fit import BACKENDS, Fit, fit  # noqa: E402
+from .inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit  # noqa: E402
+from .simulate import Simulation, simulate  # noqa: E402
+from .spec import ModelSpec, load_spec  # noqa: E402
+from .table import MeasurementTable, load_table  # noqa: E402
+
+__all__ = [
+    "__version__",
+    "BACKENDS",
+    "BayescalError",
+    "CalibrationModel",
+    "Design",
+    "Diagnostics",
+    "Fit",
+    "FitFailedError",
+    "FitFailedWarning",
+    "LinearFit",
+    "MeasurementTable",
+    "ModelSpec",
+    "Simulation",
+    "SpecError",
+    "TableError",
+    "Truth",
+    "build_model",
+    "enable_compilation_cache",
+    "enable_float64",
+    "fit",
+    "load_design",
+    "load_spec",
+    "load_table",
+    "lsq_baseline",
+    "lstsq",
+    "polyfit",
+    "simulate",
+]

@@ -1,0 +1,98 @@
+"""Assemble a numpyro model from components (DESIGN.md section 3).
+
+The model function is built once per *structure* (the components, which are
+hashable) and takes the data pytree as its only argument, so one compiled
+program serves every dataset of the same shape.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Callable
+
+import numpy as np
+
+from .components import Dark, Noise, Response, Saturation, Sphere
+from .data import Layout, ModelData, prepare
+from .spec import ModelSpec
+from .table import MeasurementTable
+
+__all__ = ["Parts", "CalibrationModel", "build_model"]
+
+
+@dataclass(frozen=True)
+class Parts:
+    """The components of one model structure (hashable: a cache key)."""
+
+    response: Response
+    dark: Dark
+    noise: Noise
+    sphere: Sphere
+    saturation: Saturation
+
+    @classmethod
+    def from_spec(cls, spec: ModelSpec, layout: Layout, level_sigma: np.ndarray) -> Parts:
+        """Pick and configure the components the spec asks for."""
+        n_levels = len(layout.levels)
+        return cls(
+            response=Response(spec.response, len(layout.channels)),
+            dark=Dark(spec.dark, len(layout.channels), len(layout.gain_values)),
+            noise=Noise(spec.noise, layout.dn_scale),
+            sphere=Sphere(spec.sphere, n_levels, bool(np.any(level_sigma > 0))),
+            saturation=Saturation(spec.saturation),
+        )
+
+    def describe(self) -> list[str]:
+        """Human-readable list of what the model contains."""
+        r, d, n, s = self.response, self.dark, self.noise, self.sphere
+        items = [f"response: order {r.spec.order}" + (", pooled nonlinearity" if r.n_terms and r.spec.pooled else "")]
+        items.append(f"dark: {d.spec.gain_dependence}" + (", exposure slope" if d.spec.exposure_slope else ""))
+        items.append(f"noise: {n.spec.kind}" + (f", excess (scale {n.spec.excess_dn:g} DN)" if n.spec.excess_dn else ""))
+        items.append(f"sphere: common {s.spec.common_rel:.1%} folded in" + (f", {s.n_levels} level errors" if s.per_level else ""))
+        items.append("saturation: censored" if self.saturation.spec.censor else "saturation: not modelled")
+        return items
+
+
+@lru_cache(maxsize=64)
+def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
+    """The numpyro model for one structure (cached, so compilations are reused)."""
+
+    def model(data: ModelData) -> None:
+        gain, eta = parts.response.sample()
+        multiplier = parts.sphere.sample(data)
+        signal = parts.response.signal(gain, eta, data.u * multiplier, data.channel)
+        offset = parts.dark.sample(data)
+        var_mean = parts.noise.sample(data, signal)
+        var_pix = parts.noise.nominal_pixel_variance(data, signal)
+        parts.saturation.observe(data, offset + signal, signal, var_pix, var_mean)
+
+    return model
+
+
+@dataclass(frozen=True)
+class CalibrationModel:
+    """A spec, a prepared dataset and the assembled numpyro model."""
+
+    spec: ModelSpec
+    table: MeasurementTable
+    data: ModelData
+    layout: Layout
+    parts: Parts
+
+    @property
+    def model(self) -> Callable[[ModelData], None]:
+        """The numpyro model function (data is its argument)."""
+        return numpyro_model(self.parts)
+
+    @property
+    def structure_key(self) -> tuple:
+        """What determines the compiled program: components and array shapes."""
+        return (self.parts, self.layout.shape_key)
+
+
+def build_model(table: MeasurementTable, spec: ModelSpec) -> CalibrationModel:
+    """Validate ``table`` against ``spec`` and assemble the model."""
+    data, layout = prepare(table, spec)
+    parts = Parts.from_spec(spec, layout, np.asarray(data.level_sigma))
+    return CalibrationModel(spec=spec, table=table, data=data, layout=layout, parts=parts)

@@ -1,0 +1,18 @@
+"""Model components: each a small object with a prior, a forward function and
+a ``physical`` method turning its scaled draws into reported quantities.
+
+Roles in the measurement equation (DESIGN.md section 2)::
+
+    DN = offset(gain, t) + S(x * (1 + e_level)) (clipped at full scale) + noise
+
+Adding a component does not touch the others; the assembly in
+:mod:`bayescal.assemble` wires them together.
+"""
+
+from .dark import Dark
+from .noise import Noise
+from .response import Response
+from .saturation import Saturation
+from .sphere import Sphere
+
+__all__ = ["Dark", "Noise", "Response", "Saturation", "Sphere"]

@@ -1,0 +1,91 @@
+"""Offset and dark signal: per gain setting (or proportional to gain), linear in exposure.
+
+Physics: seed 000 section 5.1 (about 50 DN at gain step 1, over 450 DN at
+step 4; nearly flat over 2.7-10 ms; channel colour barely matters), seed 002
+section 4.1 (dark roughly linear in integration time) and eq. 12 (offset
+scales with the video gain).  Channel offsets are partially pooled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+import numpyro
+import numpyro.distributions as dist
+
+from ..spec import DarkSpec
+from .priors import scale_prior
+
+__all__ = ["Dark"]
+
+OFFSET_PRIOR = (0.05, 0.25)  # fraction of full scale
+OFFSET_TAU_SD = 0.01
+SLOPE_PRIOR_SD = 0.05  # fraction of full scale per longest exposure
+
+
+@dataclass(frozen=True)
+class Dark:
+    """Offset ``b0[channel, gain]`` plus ``b1[gain] * t`` (scaled units)."""
+
+    spec: DarkSpec
+    n_channels: int
+    n_gains: int
+
+    @property
+    def proportional(self) -> bool:
+        """Offset proportional to the gain factor (seed 002 eq. 12)."""
+        return self.spec.gain_dependence == "proportional"
+
+    def sample(self, data) -> jnp.ndarray:
+        """Sample the offset parameters and return the per-row scaled offset."""
+        c, g = self.n_channels, 1 if self.proportional else self.n_gains
+        if self.spec.pooled and c > 1:
+            mu = numpyro.sample("b0_mu", dist.Normal(*OFFSET_PRIOR).expand([g]).to_event(1))
+            tau = numpyro.sample("b0_tau", scale_prior(OFFSET_TAU_SD))
+            b0 = numpyro.sample("b0", dist.Normal(mu, tau).expand([c, g]).to_event(2))
+        else:
+            b0 = numpyro.sample("b0", dist.Normal(*OFFSET_PRIOR).expand([c, g]).to_event(2))
+        if self.proportional:
+            offset = b0[data.channel, 0] * data.g_rel
+        else:
+            offset = b0[data.channel, data.gset]
+        if self.spec.exposure_slope:
+            b1 = numpyro.sample("b1", dist.Normal(0.0, SLOPE_PRIOR_SD).expand([g]).to_event(1))
+            offset = offset + (b1[0] * data.g_rel if self.proportional else b1[data.gset]) * data.t
+        return offset
+
+    def offset_dn(
+        self, draws: dict[str, np.ndarray], channel: int, gain: float, exposure_s: float, layout, ref_gain: float
+    ) -> np.ndarray:
+        """Offset in DN at one channel, gain factor and exposure, per draw."""
+        if self.proportional:
+            g_rel = gain / ref_gain
+            off = draws["b0"][..., channel, 0] * g_rel
+            if self.spec.exposure_slope:
+                off = off + draws["b1"][..., 0] * g_rel * exposure_s / layout.t_scale
+        else:
+            gi = layout.gain_values.index(gain)
+            off = draws["b0"][..., channel, gi]
+            if self.spec.exposure_slope:
+                off = off + draws["b1"][..., gi] * exposure_s / layout.t_scale
+        return off * layout.dn_scale
+
+    def physical(self, draws: dict[str, np.ndarray], layout) -> dict[str, np.ndarray]:
+        """Dark offset in DN at zero exposure and its exposure slope in DN/s.
+
+        Per (channel, gain setting) for per-setting offsets; at the reference
+        gain (``*_ref``) for proportional ones.
+        """
+        b0 = draws["b0"] * layout.dn_scale
+        slope = draws["b1"] * layout.dn_scale / layout.t_scale if self.spec.exposure_slope else None
+        if self.proportional:
+            out = {"dark_offset_ref": b0[..., 0]}
+            if slope is not None:
+                out["dark_slope_ref"] = slope[..., 0]
+            return out
+        out = {"dark_offset": b0}
+        if slope is not None:
+            out["dark_slope"] = slope
+        return out

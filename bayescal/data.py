@@ -1,0 +1,179 @@
+"""From a validated table and a spec to the scaled arrays a model consumes.
+
+Everything the model sees is dimensionless and O(1): DN is divided by full
+scale, the effective stimulus ``x = L t M g / (t_ref M_ref g_ref)`` (the
+radiance that would give the same signal at the reference setting; seeds 000
+section 5.3 and 002 eq. 11) by its largest value, exposure by its largest
+value (DESIGN.md section 5).  Only shapes enter the compiled model, so
+datasets of one shape share one compilation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from .errors import TableError
+from .spec import ModelSpec
+from .table import MeasurementTable
+
+__all__ = ["ModelData", "Layout", "prepare", "effective_stimulus"]
+
+
+class ModelData(NamedTuple):
+    """Scaled per-row arrays (a JAX pytree; passed to the compiled model as an argument)."""
+
+    y: jnp.ndarray  # dn_mean / full scale
+    u: jnp.ndarray  # effective stimulus / x_scale (0 for dark rows)
+    t: jnp.ndarray  # exposure / t_scale
+    g_rel: jnp.ndarray  # gain / reference gain
+    channel: jnp.ndarray  # int channel index
+    gset: jnp.ndarray  # int gain-setting index
+    level: jnp.ndarray  # int level index; dark rows -> n_levels
+    level_sigma: jnp.ndarray  # (n_levels,) relative sd of each level's reading
+    var_meas: jnp.ndarray  # measured per-pixel variance / full scale^2 (1 if absent)
+    n_avg: jnp.ndarray  # n_frames * n_pixels
+    censored: jnp.ndarray  # bool, right-censored at the threshold
+    threshold: jnp.ndarray  # scalar, censoring threshold / full scale
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Static structure and scales of a prepared dataset."""
+
+    channels: tuple[str, ...]
+    gain_values: tuple[float, ...]
+    levels: tuple[str, ...]
+    level_stimulus: tuple[float, ...]
+    x_scale: float
+    t_scale: float
+    dn_scale: float
+    n_rows: int
+    unit: str
+
+    @property
+    def shape_key(self) -> tuple[int, ...]:
+        """The sizes that determine the compiled model's shapes."""
+        return (self.n_rows, len(self.channels), len(self.gain_values), len(self.levels))
+
+
+def effective_stimulus(
+    stimulus: np.ndarray, exposure_s: np.ndarray, gain: np.ndarray, tdi: np.ndarray, spec: ModelSpec
+) -> np.ndarray:
+    """Stimulus scaled to the reference setting: ``L t M g / (t_ref M_ref g_ref)``."""
+    ref = spec.reference
+    return stimulus * (exposure_s * tdi * gain) / (ref.exposure_s * ref.tdi_stages * ref.gain)
+
+
+def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout]:
+    """Check the table against the spec and build the scaled model inputs.
+
+    Raises
+    ------
+    TableError
+        If a channel has too few distinct unsaturated levels for the response
+        order, if every illuminated point of a channel is saturated, if the
+        reference gain was never measured (per-setting dark), or if the noise
+        model needs a column the table lacks.
+    """
+    df = table.frame
+    if table.stimulus != spec.stimulus:
+        raise TableError(
+            f"the model '{spec.name}' expects a '{spec.stimulus}' column but the table has '{table.stimulus}'",
+            column=table.stimulus,
+        )
+    dn_scale = spec.full_scale
+    over = np.flatnonzero(df["dn_mean"].to_numpy() > dn_scale + 0.5)
+    if over.size:
+        raise TableError(
+            f"dn_mean {df['dn_mean'].iloc[over[0]]:g} exceeds full scale {dn_scale:g} of a {spec.bits}-bit ADC; "
+            "check the model's bit depth",
+            row=int(over[0]) + 1,
+            column="dn_mean",
+        )
+    dark = table.is_dark
+    x = effective_stimulus(
+        df["stimulus"].to_numpy(), df["exposure_s"].to_numpy(), df["gain"].to_numpy(), df["tdi_stages"].to_numpy(), spec
+    )
+    if not np.any(~dark):
+        raise TableError("the table has only dark rows; expected illuminated rows too", column=table.stimulus)
+    threshold = (dn_scale - spec.saturation.margin_dn) / dn_scale
+    y = df["dn_mean"].to_numpy() / dn_scale
+    censored = (y >= threshold) & spec.saturation.censor
+    saturated = y >= threshold
+    _check_levels_per_channel(df, dark, saturated, x, spec)
+
+    channels = tuple(table.channels)
+    ch_index = {c: i for i, c in enumerate(channels)}
+    gains = tuple(sorted(set(df["gain"])))
+    g_index = {g: i for i, g in enumerate(gains)}
+    if spec.dark.gain_dependence == "per_setting" and spec.reference.gain not in g_index:
+        raise TableError(
+            f"the reference gain {spec.reference.gain:g} was never measured (gains {list(gains)}); "
+            "per-setting offsets need it, or use dark.gain_dependence = 'proportional'",
+            column="gain",
+        )
+    lit = df.loc[~dark, ["level", "stimulus"]].drop_duplicates("level").sort_values("stimulus")
+    levels = tuple(lit["level"])
+    l_index = {lv: i for i, lv in enumerate(levels)}
+    level_idx = np.array([l_index.get(lv, len(levels)) for lv in df["level"]])
+    level_sigma = np.full(len(levels), spec.sphere.per_level_rel)
+    if "radiance_u_rel" in df:
+        per = df.loc[~dark].groupby("level")["radiance_u_rel"].max()
+        level_sigma = np.array([per[lv] for lv in levels])
+    if spec.noise.kind == "measured" and "dn_var" not in df:
+        raise TableError("noise.kind = 'measured' needs a 'dn_var' column (per-pixel temporal variance, DN^2)", column="dn_var")
+    var_meas = df["dn_var"].to_numpy() / dn_scale**2 if "dn_var" in df else np.ones(len(df))
+
+    x_scale = float(np.max(x))
+    t_scale = float(df["exposure_s"].max())
+    data = ModelData(
+        y=jnp.asarray(y),
+        u=jnp.asarray(x / x_scale),
+        t=jnp.asarray(df["exposure_s"].to_numpy() / t_scale),
+        g_rel=jnp.asarray(df["gain"].to_numpy() / spec.reference.gain),
+        channel=jnp.asarray([ch_index[c] for c in df["channel"]], dtype=jnp.int32),
+        gset=jnp.asarray([g_index[g] for g in df["gain"]], dtype=jnp.int32),
+        level=jnp.asarray(level_idx, dtype=jnp.int32),
+        level_sigma=jnp.asarray(level_sigma, dtype=float),
+        var_meas=jnp.asarray(var_meas),
+        n_avg=jnp.asarray((df["n_frames"] * df["n_pixels"]).to_numpy()),
+        censored=jnp.asarray(censored),
+        threshold=jnp.asarray(threshold),
+    )
+    layout = Layout(
+        channels=channels,
+        gain_values=gains,
+        levels=levels,
+        level_stimulus=tuple(float(v) for v in lit["stimulus"]),
+        x_scale=x_scale,
+        t_scale=t_scale,
+        dn_scale=dn_scale,
+        n_rows=len(df),
+        unit=table.unit,
+    )
+    return data, layout
+
+
+def _check_levels_per_channel(df, dark: np.ndarray, saturated: np.ndarray, x: np.ndarray, spec: ModelSpec) -> None:
+    need = spec.response.order + 1
+    for channel in dict.fromkeys(df["channel"]):
+        mine = (df["channel"].to_numpy() == channel) & ~dark
+        if mine.any() and np.all(saturated[mine]):
+            row = int(np.flatnonzero(mine)[0]) + 1
+            raise TableError(
+                f"every illuminated point of channel '{channel}' is saturated (>= full scale); "
+                "nothing constrains its gain",
+                row=row,
+                column="dn_mean",
+            )
+        distinct = np.unique(np.round(x[mine & ~saturated], 12)).size
+        if distinct < need:
+            raise TableError(
+                f"channel '{channel}' has {distinct} distinct unsaturated stimulus levels; a response of order "
+                f"{spec.response.order} needs at least {need}",
+                column=spec.stimulus,
+            )

@@ -1,0 +1,49 @@
+"""Exceptions raised by bayescal.
+
+Every input error names where it is (file, row, column) and what was expected,
+so that a calibration scientist can fix the CSV without reading code.
+"""
+
+from __future__ import annotations
+
+__all__ = ["BayescalError", "TableError", "SpecError", "FitFailedError", "FitFailedWarning"]
+
+
+class BayescalError(Exception):
+    """Base class of every bayescal error."""
+
+
+class TableError(BayescalError, ValueError):
+    """A measurement table is malformed.
+
+    Attributes
+    ----------
+    row : int or None
+        1-based data row (the header is row 0; in a CSV file the line number
+        is ``row + 1``), or ``None`` when the problem is not tied to one row.
+    column : str or None
+        Offending column, or ``None``.
+    """
+
+    def __init__(self, message: str, *, row: int | None = None, column: str | None = None):
+        where = []
+        if row is not None:
+            where.append(f"row {row}")
+        if column is not None:
+            where.append(f"column '{column}'")
+        prefix = f"{', '.join(where)}: " if where else ""
+        super().__init__(prefix + message)
+        self.row = row
+        self.column = column
+
+
+class SpecError(BayescalError, ValueError):
+    """A model specification or design is malformed (names the key at fault)."""
+
+
+class FitFailedError(BayescalError, RuntimeError):
+    """Raised when a fit's diagnostics fail and the caller asked for strictness."""
+
+
+class FitFailedWarning(UserWarning):
+    """Warned when a fit's diagnostics fail (divergences, R-hat, ESS)."""

@@ -1,0 +1,311 @@
+"""Fit a calibration model with any backend; the result object and its files.
+
+``fit(table, spec, backend)`` assembles the model, finds a data-driven start,
+and runs ``nuts`` (default), ``laplace``, ``emcee`` or ``lsq``.  The
+Bayesian backends return draws of the same reported quantities, so their
+speed and error can be compared (DESIGN.md section 4).  The least-squares
+baseline is always computed beside them.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import warnings
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import arviz as az
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+from . import __version__
+from .assemble import CalibrationModel, build_model
+from .derived import DIMS, physical_draws
+from .diagnostics import Diagnostics, mcmc_diagnostics
+from .errors import FitFailedError, FitFailedWarning, SpecError
+from .inference.emcee_backend import run_emcee
+from .inference.laplace import laplace, laplace_draws
+from .inference.lsq import lsq_baseline
+from .inference.nuts import run_nuts
+from .inference.program import program_for
+from .inference.start import initial_point
+from .io import staged_directory, write_json_atomic
+from .spec import ModelSpec
+from .table import MeasurementTable
+
+__all__ = ["Fit", "fit", "BACKENDS", "REPORTED"]
+
+BACKENDS = ("nuts", "laplace", "emcee", "lsq")
+#: quantities in the summary, in order
+REPORTED = (
+    "gain",
+    "A_abs",
+    "A_rel",
+    "nonlinearity",
+    "dark_offset",
+    "dark_offset_ref",
+    "dark_slope",
+    "dark_slope_ref",
+    "level_error",
+    "excess_dn",
+    "sphere_scale",
+)
+SAMPLED = ("G", "eta", "b0", "b1", "level_z", "excess", "logG_mu", "logG_tau", "logG_z", "eta_mu", "eta_tau", "b0_mu", "b0_tau")
+
+
+@dataclass(frozen=True)
+class Fit:
+    """A fitted calibration model.
+
+    Attributes
+    ----------
+    model : CalibrationModel
+        Spec, table and assembled model.
+    backend : str
+        ``nuts``, ``laplace``, ``emcee`` or ``lsq``.
+    seed : int
+        Seed of every random number in the fit.
+    posterior : xarray.DataTree or None
+        arviz DataTree (``posterior``, ``sample_stats``, ``measurements``);
+        None for ``lsq``.
+    diagnostics : Diagnostics
+        Convergence verdict.
+    lsq : pandas.DataFrame
+        The papers' least-squares fits per channel and setting.
+    timings : dict
+        Wall seconds of the stages.
+    """
+
+    model: CalibrationModel
+    backend: str
+    seed: int
+    posterior: xr.DataTree | None
+    diagnostics: Diagnostics
+    lsq: pd.DataFrame
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        """Whether the diagnostics passed."""
+        return self.diagnostics.ok
+
+    @cached_property
+    def summary(self) -> pd.DataFrame:
+        """Per reported quantity: mean, sd, 2.5/50/97.5 % quantiles, R-hat, bulk/tail ESS."""
+        if self.posterior is None:
+            return pd.DataFrame()
+        post = self.posterior["posterior"].to_dataset()
+        names = [v for v in REPORTED if v in post]
+        table = az.summary(post[names], ci_prob=0.95, ci_kind="eti", round_to="none")
+        median = _flat_stat(post[names], lambda a: np.median(a, axis=(0, 1)))
+        table.insert(2, "q2.5", table.pop("eti95_lb"))
+        table.insert(3, "q50", median.reindex(table.index))
+        table.insert(4, "q97.5", table.pop("eti95_ub"))
+        return table[["mean", "sd", "q2.5", "q50", "q97.5", "r_hat", "ess_bulk", "ess_tail"]]
+
+    @cached_property
+    def comparison(self) -> pd.DataFrame:
+        """The papers' coefficients at the reference setting: least squares beside the posterior."""
+        ref = self.model.spec.reference
+        order = self.model.spec.response.order
+        rows = []
+        lsq = self.lsq
+        at_ref = lsq[
+            np.isclose(lsq.get("exposure_s", np.nan), ref.exposure_s)
+            & np.isclose(lsq.get("gain", np.nan), ref.gain)
+            & np.isclose(lsq.get("tdi_stages", np.nan), ref.tdi_stages)
+            & (lsq.get("order", -1) == order)
+        ] if len(lsq) else lsq
+        post = None if self.posterior is None else self.posterior["posterior"]
+        for ci, channel in enumerate(self.model.layout.channels):
+            lrow = at_ref[at_ref["channel"] == channel] if len(at_ref) else at_ref
+            for k in range(order + 1):
+                row = {"channel": channel, "coefficient": f"A{k}"}
+                if len(lrow):
+                    r = lrow.iloc[0]
+                    row.update(lsq=r[f"A{k}"], lsq_lo=r[f"A{k}_lo"], lsq_hi=r[f"A{k}_hi"], lsq_r2=r["r2"])
+                if post is not None:
+                    for kind in ("rel", "abs"):
+                        a = np.asarray(post[f"A_{kind}"])[..., ci, k].ravel()
+                        row.update(
+                            {
+                                f"bayes_{kind}": float(a.mean()),
+                                f"bayes_{kind}_lo": float(np.quantile(a, 0.025)),
+                                f"bayes_{kind}_hi": float(np.quantile(a, 0.975)),
+                            }
+                        )
+                rows.append(row)
+        return pd.DataFrame(rows)
+
+    def draws(self, name: str) -> np.ndarray:
+        """Draws of one posterior variable, flattened over chains: shape ``(n_draws, ...)``."""
+        arr = np.asarray(self.posterior["posterior"][name])
+        return arr.reshape((-1,) + arr.shape[2:])
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary: status, diagnostics, model, parameters and the LSQ baseline."""
+        spec, layout = self.model.spec, self.model.layout
+        return {
+            "status": "ok" if self.ok else "FAILED",
+            "backend": self.backend,
+            "seed": self.seed,
+            "bayescal_version": __version__,
+            "model": {"name": spec.name, "components": self.model.parts.describe(), "reference": spec.to_dict()["reference"]},
+            "stimulus_unit": layout.unit,
+            "diagnostics": self.diagnostics.to_dict(),
+            "timings_s": self.timings,
+            "parameters": _records(self.summary.reset_index(names="parameter")) if len(self.summary) else [],
+            "comparison_at_reference": _records(self.comparison),
+            "lsq": _records(self.lsq),
+        }
+
+    def save(self, out_dir: str | os.PathLike) -> Path:
+        """Write ``posterior.nc``, ``summary.csv``, ``summary.json`` and ``lsq.csv`` atomically."""
+        out_dir = Path(out_dir)
+        with staged_directory(out_dir) as stage:
+            if self.posterior is not None:
+                self.posterior.to_netcdf(stage("posterior.nc"), engine="h5netcdf")
+                self.summary.to_csv(stage("summary.csv"), index_label="parameter", float_format="%.8g")
+            else:
+                self.lsq.to_csv(stage("summary.csv"), index=False, float_format="%.8g")
+            self.lsq.to_csv(stage("lsq.csv"), index=False, float_format="%.8g")
+            write_json_atomic(stage("summary.json"), self.to_dict())
+        return out_dir
+
+
+def fit(
+    table: MeasurementTable,
+    spec: ModelSpec,
+    backend: str = "nuts",
+    *,
+    seed: int = 0,
+    progress=None,
+    strict: bool = False,
+) -> Fit:
+    """Fit ``spec`` to ``table``.
+
+    Parameters
+    ----------
+    backend : {"nuts", "laplace", "emcee", "lsq"}
+        Inference method (DESIGN.md section 4).
+    seed : int
+        Seed of every random number (chains, jitter, sphere-scale draws).
+    progress : callable, optional
+        ``progress(iterations_done)`` for NUTS.
+    strict : bool
+        Raise :class:`FitFailedError` instead of warning when diagnostics fail.
+    """
+    if backend not in BACKENDS:
+        raise SpecError(f"unknown backend '{backend}'; expected one of {', '.join(BACKENDS)}")
+    t0 = time.perf_counter()
+    model = build_model(table, spec)
+    lsq = lsq_baseline(table, orders=range(1, spec.response.order + 1), full_scale=spec.full_scale)
+    timings = {"prepare": time.perf_counter() - t0}
+    if backend == "lsq":
+        diag = Diagnostics(True, (), extra={"note": "least squares: no posterior"})
+        return Fit(model, backend, seed, None, diag, lsq, timings)
+    program = program_for(model)
+    t1 = time.perf_counter()
+    result = laplace(program, model.data, initial_point(model, program))
+    timings["map"] = time.perf_counter() - t1
+    extra = {"map_converged": result.converged, "hessian_positive_definite": result.positive_definite}
+    if not result.positive_definite:
+        _fail(strict, "the posterior mode's Hessian is not positive definite: the model is not identified by these data")
+    t2 = time.perf_counter()
+    divergences, stats = 0, {}
+    if backend == "laplace":
+        z = laplace_draws(result, spec.inference.laplace_draws, seed)[None]
+        if model.parts.response.spec.pooled or model.parts.dark.spec.pooled:
+            extra["warning"] = "pooling scales make the Laplace approximation unreliable; use nuts"
+    elif backend == "nuts":
+        out = run_nuts(program, model.data, result.mode, result.cov, spec.inference, seed, progress)
+        z, divergences = out.z, int(out.diverging.sum())
+        stats = {"diverging": out.diverging, "tree_steps": out.num_steps, "accept_prob": out.accept_prob, "energy": out.energy}
+    else:
+        z, acc, tau = run_emcee(program, model.data, result.mode, result.cov, spec.inference, seed)
+        extra.update(acceptance_fraction=acc, max_autocorr_steps=float(np.max(tau)))
+    timings[backend] = time.perf_counter() - t2
+    post = _posterior(model, program, z, seed)
+    diag = _diagnose(backend, post, divergences, spec, extra, result)
+    if not diag.ok:
+        _fail(strict, f"fit failed its diagnostics: {diag.verdict}")
+    dt = az.from_dict(
+        {"posterior": post, **({"sample_stats": stats} if stats else {})},
+        dims={k: v for k, v in DIMS.items() if k in post},
+        coords=_coords(model),
+        attrs={"spec_toml": spec.to_toml(), "backend": backend, "seed": seed, "bayescal_version": __version__},
+    )
+    dt["measurements"] = xr.DataTree(_table_dataset(table))
+    return Fit(model, backend, seed, dt, diag, lsq, timings)
+
+
+def _posterior(model: CalibrationModel, program, z: np.ndarray, seed: int) -> dict[str, np.ndarray]:
+    chains, draws, dim = z.shape
+    sites = program.constrain(np.asarray(z).reshape(-1, dim), model.data)
+    sites = {k: np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]) for k, v in sites.items()}
+    post = {k: v for k, v in sites.items() if k in SAMPLED}
+    post.update(physical_draws(model, sites, seed))
+    return post
+
+
+def _diagnose(backend, post, divergences, spec, extra, result) -> Diagnostics:
+    if backend == "laplace":
+        problems = () if (result.positive_definite and result.converged) else ("MAP did not converge",)
+        return Diagnostics(not problems, problems, extra=extra)
+    ds = xr.Dataset({k: (("chain", "draw") + tuple(f"{k}_{i}" for i in range(v.ndim - 2)), v) for k, v in post.items() if k != "sphere_scale"})
+    settings = spec.inference
+    if backend == "emcee":  # walkers are not independent chains: judge ESS from the autocorrelation time
+        n_eff = ds.sizes["chain"] * ds.sizes["draw"] / extra["max_autocorr_steps"]
+        problems = () if n_eff >= settings.min_ess else (f"effective sample size {n_eff:.0f} < {settings.min_ess:.0f}",)
+        return Diagnostics(not problems, problems, min_ess_bulk=n_eff, extra=extra)
+    return mcmc_diagnostics(ds, divergences, settings, extra)
+
+
+def _fail(strict: bool, message: str) -> None:
+    if strict:
+        raise FitFailedError(message)
+    warnings.warn(message, FitFailedWarning, stacklevel=3)
+
+
+def _coords(model: CalibrationModel) -> dict:
+    layout, spec = model.layout, model.spec
+    coords = {
+        "channel": list(layout.channels),
+        "power": list(range(spec.response.order + 1)),
+        "nl_term": list(range(1, spec.response.order)),
+        "level": list(layout.levels),
+    }
+    if not model.parts.dark.proportional:
+        coords["gain_setting"] = list(layout.gain_values)
+    else:
+        coords["gain_setting"] = [spec.reference.gain]
+    return coords
+
+
+def _table_dataset(table: MeasurementTable) -> xr.Dataset:
+    df = table.to_frame().reset_index(drop=True)
+    ds = xr.Dataset({c: ("row", df[c].to_numpy().astype(str) if df[c].dtype == object else df[c].to_numpy()) for c in df})
+    ds.attrs.update(stimulus=table.stimulus, unit=table.unit, source=table.source)
+    return ds
+
+
+def _flat_stat(ds: xr.Dataset, fn) -> pd.Series:
+    out = {}
+    for name, da in ds.data_vars.items():
+        values = fn(np.asarray(da))
+        dims = da.dims[2:]
+        if not dims:
+            out[name] = float(values)
+            continue
+        coords = [da[d].values for d in dims]
+        for idx in np.ndindex(values.shape):
+            label = ", ".join(str(coords[i][j]) for i, j in enumerate(idx))
+            out[f"{name}[{label}]"] = float(values[idx])
+    return pd.Series(out)
+
+
+def _records(df: pd.DataFrame) -> list[dict]:
+    return [{k: (v.item() if hasattr(v, "item") else v) for k, v in row.items()} for row in df.to_dict("records")]

@@ -1,0 +1,315 @@
+"""Model specifications: which components a calibration model is assembled from.
+
+A spec is a small tree of frozen dataclasses, loadable from TOML (``models/``)
+or built in Python.  Turning a component off (``order = 1``,
+``per_level_rel = 0``, ``excess_dn = 0``, ``censor = false``) removes its
+parameters from the model: model only what the scene needs (DESIGN.md
+section 1).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from .errors import SpecError
+
+__all__ = [
+    "ModelSpec",
+    "Reference",
+    "ResponseSpec",
+    "DarkSpec",
+    "NoiseSpec",
+    "SphereSpec",
+    "SaturationSpec",
+    "InferenceSpec",
+    "load_spec",
+]
+
+
+@dataclass(frozen=True)
+class Reference:
+    """Setting at which the papers' monomial coefficients DN = A0 + A1 L + ... are reported.
+
+    Seed 000 Table 1 uses gain 1, 1/250 s; seed 002 eq. 9-10 use M = 48,
+    T_int = 105 us, g = 1.
+    """
+
+    exposure_s: float
+    gain: float = 1.0
+    tdi_stages: float = 1.0
+
+
+@dataclass(frozen=True)
+class ResponseSpec:
+    """Polynomial response in the effective stimulus x = L t M g (seeds 000 eq. 5, 002 eq. 6/11).
+
+    ``order`` 1 is linear; order p adds a relative nonlinearity of degree p-1
+    in the linear signal (fraction of full scale), ``DN = S (1 + n(S))`` with
+    ``S = G x`` (DESIGN.md section 2).  ``pooled`` partially pools the
+    nonlinearity across channels (it is a property of the sense node and ADC,
+    shared by all colours); ``gain_prior = "pooled"`` also pools the
+    per-channel log gains.
+    """
+
+    order: int = 1
+    pooled: bool = True
+    gain_prior: Literal["lognormal", "normal", "pooled"] = "lognormal"
+
+
+@dataclass(frozen=True)
+class DarkSpec:
+    """Offset/dark signal: per gain setting, linear in exposure (seed 000 section 5.1).
+
+    ``gain_dependence = "proportional"`` makes the offset scale with the gain
+    factor instead (seed 002 eq. 12, DN = g (... + 28.72)), which also
+    predicts unmeasured gains.  ``pooled`` partially pools the channel
+    offsets (seed 000: channel colour barely matters for dark).
+    """
+
+    gain_dependence: Literal["per_setting", "proportional"] = "per_setting"
+    exposure_slope: bool = True
+    pooled: bool = True
+
+
+@dataclass(frozen=True)
+class NoiseSpec:
+    """Noise of a row's mean DN (seed 000 eq. 3: N2, N3; seed 002 section 2).
+
+    ``kind = "physical"``: per-pixel variance ``(g r)^2 + K g S + 1/12`` (read
+    noise ``r`` in DN at the reference gain, conversion gain ``K`` in DN/e- at
+    the reference gain, quantisation), divided by ``n_frames * n_pixels``.
+    ``r`` and ``K`` are fixed (from photon transfer): region means carry
+    almost no information about them.  ``kind = "measured"``: the table's
+    ``dn_var`` column is the per-pixel temporal variance.  ``excess_dn`` is the half-normal scale of an extra
+    per-row scatter (lamp drift, model error); 0 turns it off.
+    """
+
+    kind: Literal["physical", "measured"] = "physical"
+    read_noise_dn: float = 2.0
+    conversion_gain: float = 0.1
+    excess_dn: float = 5.0
+
+
+@dataclass(frozen=True)
+class SphereSpec:
+    """Integrating-sphere radiance uncertainty (seed 002 section 4.3: below 3 %).
+
+    ``common_rel``: relative standard uncertainty of the sphere's scale,
+    common to every level; it is exactly degenerate with the gains and is
+    folded in after fitting (DESIGN.md section 4).  ``per_level_rel``:
+    relative standard uncertainty of each level's reading, shared by all
+    channels and settings at that level, sampled non-centred (0 turns it off;
+    a ``radiance_u_rel`` column overrides it per level).
+    """
+
+    common_rel: float = 0.03
+    per_level_rel: float = 0.0
+
+
+@dataclass(frozen=True)
+class SaturationSpec:
+    """Clipping at full scale 2^bits - 1 (seed 000 drops a clipped red point by hand).
+
+    With ``censor`` on, rows whose mean reads at or above full scale minus
+    ``margin_dn`` are right-censored, and the expected mean of partially
+    clipped regions is modelled (pixel spread from temporal noise and a
+    ``prnu`` fraction).
+    """
+
+    censor: bool = True
+    margin_dn: float = 0.5
+    prnu: float = 0.01
+
+
+@dataclass(frozen=True)
+class InferenceSpec:
+    """Sampler settings and the thresholds a fit must pass (DESIGN.md section 4)."""
+
+    chains: int = 4
+    draws: int = 1000
+    warmup: int = 1000
+    target_accept: float = 0.9
+    max_tree_depth: int = 10
+    dense_mass: bool = True
+    laplace_draws: int = 4000
+    emcee_walkers: int = 0
+    emcee_steps: int = 6000
+    emcee_burn: int = 2000
+    max_rhat: float = 1.01
+    min_ess: float = 400.0
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A full calibration model: sensor facts plus the components to assemble.
+
+    Attributes
+    ----------
+    name, description : str
+        Identification for reports.
+    bits : int
+        ADC bit depth; full scale is ``2**bits - 1`` DN.
+    stimulus : {"radiance", "irradiance"}
+        What the table's stimulus column holds.
+    reference : Reference
+        Setting for the papers' coefficient table.
+    """
+
+    name: str
+    bits: int
+    reference: Reference
+    description: str = ""
+    stimulus: Literal["radiance", "irradiance"] = "radiance"
+    response: ResponseSpec = field(default_factory=ResponseSpec)
+    dark: DarkSpec = field(default_factory=DarkSpec)
+    noise: NoiseSpec = field(default_factory=NoiseSpec)
+    sphere: SphereSpec = field(default_factory=SphereSpec)
+    saturation: SaturationSpec = field(default_factory=SaturationSpec)
+    inference: InferenceSpec = field(default_factory=InferenceSpec)
+
+    def __post_init__(self) -> None:
+        _check_spec(self)
+
+    @property
+    def full_scale(self) -> float:
+        """Largest DN the ADC can output."""
+        return float(2**self.bits - 1)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], *, source: str = "<dict>") -> ModelSpec:
+        """Build a spec from nested dicts (the TOML layout); unknown keys are errors."""
+        return _build(cls, data, source, "")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Nested dict in the TOML layout."""
+        return dataclasses.asdict(self)
+
+    def to_toml(self) -> str:
+        """Serialise as TOML (round-trips through :func:`load_spec`)."""
+        return _to_toml(self.to_dict())
+
+    def replace(self, **sections: Any) -> ModelSpec:
+        """Copy with sections replaced; a dict value updates that section's fields.
+
+        ``spec.replace(response={"order": 2}, sphere={"per_level_rel": 0})``
+        """
+        changes = {}
+        for key, value in sections.items():
+            current = getattr(self, key)
+            if isinstance(value, dict) and dataclasses.is_dataclass(current):
+                value = dataclasses.replace(current, **value)
+            changes[key] = value
+        return dataclasses.replace(self, **changes)
+
+    def structure_key(self) -> str:
+        """Hash of everything that changes the model's structure (not sampler settings)."""
+        d = self.to_dict()
+        for key in ("name", "description", "inference"):
+            d.pop(key)
+        return hashlib.sha1(_to_toml(d).encode()).hexdigest()[:16]
+
+
+def load_spec(path: str | os.PathLike) -> ModelSpec:
+    """Load a :class:`ModelSpec` from a TOML file (see ``models/*.toml``)."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise SpecError(f"no such model spec: {path}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: invalid TOML: {exc}") from exc
+    data.pop("kind", None)
+    return ModelSpec.from_dict(data, source=str(path))
+
+
+def _build(cls: type, data: dict[str, Any], source: str, prefix: str) -> Any:
+    if not isinstance(data, dict):
+        raise SpecError(f"{source}: [{prefix.rstrip('.')}] must be a table")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(data) - names
+    if unknown:
+        raise SpecError(f"{source}: unknown key(s) {sorted(prefix + k for k in unknown)}; expected one of {sorted(names)}")
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in data:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise SpecError(f"{source}: missing required key '{prefix}{f.name}'")
+            continue
+        kwargs[f.name] = _coerce(hints[f.name], data[f.name], source, prefix + f.name)
+    try:
+        return cls(**kwargs)
+    except SpecError as exc:
+        raise SpecError(f"{source}: {exc}") from None
+
+
+def _coerce(hint: Any, value: Any, source: str, key: str) -> Any:
+    if dataclasses.is_dataclass(hint):
+        return _build(hint, value, source, key + ".")
+    origin = typing.get_origin(hint)
+    if origin is Literal:
+        if value not in typing.get_args(hint):
+            raise SpecError(f"{source}: '{key}' = {value!r}; expected one of {list(typing.get_args(hint))}")
+        return value
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise SpecError(f"{source}: '{key}' = {value!r}; expected true or false")
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise SpecError(f"{source}: '{key}' = {value!r}; expected an integer")
+        return value
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise SpecError(f"{source}: '{key}' = {value!r}; expected a number")
+        return float(value)
+    if hint is str or (origin is types.UnionType and str in typing.get_args(hint)):
+        if not isinstance(value, str):
+            raise SpecError(f"{source}: '{key}' = {value!r}; expected a string")
+        return value
+    return value
+
+
+def _check_spec(spec: ModelSpec) -> None:
+    checks = [
+        (1 <= spec.bits <= 24, f"bits = {spec.bits}; expected 1..24"),
+        (1 <= spec.response.order <= 4, f"response.order = {spec.response.order}; expected 1..4 (the papers' range)"),
+        (spec.reference.exposure_s > 0, "reference.exposure_s must be > 0"),
+        (spec.reference.gain > 0, "reference.gain must be > 0"),
+        (spec.reference.tdi_stages >= 1, "reference.tdi_stages must be >= 1"),
+        (0 <= spec.sphere.common_rel < 0.5, "sphere.common_rel must be in [0, 0.5)"),
+        (0 <= spec.sphere.per_level_rel < 0.5, "sphere.per_level_rel must be in [0, 0.5)"),
+        (spec.noise.read_noise_dn > 0, "noise.read_noise_dn must be > 0"),
+        (spec.noise.conversion_gain > 0, "noise.conversion_gain must be > 0"),
+        (spec.noise.excess_dn >= 0, "noise.excess_dn must be >= 0"),
+        (spec.saturation.margin_dn >= 0, "saturation.margin_dn must be >= 0"),
+        (spec.saturation.prnu >= 0, "saturation.prnu must be >= 0"),
+        (spec.inference.chains >= 1 and spec.inference.draws >= 10, "inference needs chains >= 1 and draws >= 10"),
+        (0 < spec.inference.target_accept < 1, "inference.target_accept must be in (0, 1)"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise SpecError(message)
+
+
+def _to_toml(d: dict[str, Any]) -> str:
+    def fmt(v: Any) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+        return repr(v)
+
+    top = [f"{k} = {fmt(v)}" for k, v in d.items() if not isinstance(v, dict)]
+    sections = [
+        f"\n[{k}]\n" + "\n".join(f"{kk} = {fmt(vv)}" for kk, vv in v.items()) for k, v in d.items() if isinstance(v, dict)
+    ]
+    return "\n".join(top) + "\n" + "\n".join(sections) + "\n"
