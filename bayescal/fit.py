@@ -236,8 +236,8 @@ def fit(
         {"posterior": post, **({"sample_stats": stats} if stats else {})},
         dims={k: v for k, v in DIMS.items() if k in post},
         coords=_coords(model),
-        attrs={"spec_toml": spec.to_toml(), "backend": backend, "seed": seed, "bayescal_version": __version__},
     )
+    dt.attrs.update(spec_toml=spec.to_toml(), backend=backend, seed=seed, bayescal_version=__version__)
     dt["measurements"] = xr.DataTree(_table_dataset(table))
     return Fit(model, backend, seed, dt, diag, lsq, timings)
 

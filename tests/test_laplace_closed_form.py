@@ -1,0 +1,48 @@
+"""Laplace equals the closed-form posterior of a linear-Gaussian model (1e-6 relative)."""
+
+import numpy as np
+
+import bayescal as bc
+from bayescal.components.dark import OFFSET_PRIOR, SLOPE_PRIOR_SD
+from bayescal.components.response import GAIN_PRIOR
+from bayescal.inference.laplace import laplace
+from bayescal.inference.program import program_for
+from bayescal.inference.start import initial_point
+
+
+def test_linear_gaussian_posterior(seed000):
+    spec, design = seed000
+    spec = spec.replace(
+        response={"order": 1, "gain_prior": "normal", "pooled": False},
+        dark={"pooled": False},
+        noise={"kind": "measured", "excess_dn": 0.0},
+        sphere={"per_level_rel": 0.0},
+        saturation={"censor": False},
+    )
+    table = bc.simulate(spec, design, seed=4).table
+    keep = table.frame["dn_mean"] < spec.full_scale - 0.5
+    table = bc.MeasurementTable.from_frame(table.to_frame()[keep].reset_index(drop=True))
+    model = bc.build_model(table, spec)
+    d = {k: np.asarray(v) for k, v in model.data._asdict().items()}
+    n, c, g = len(d["y"]), len(model.layout.channels), len(model.layout.gain_values)
+    # design matrix over the flat parameter order of the program: G (c), b0 (c*g), b1 (g)
+    x_gain = np.zeros((n, c))
+    x_gain[np.arange(n), d["channel"]] = d["u"]
+    x_b0 = np.zeros((n, c * g))
+    x_b0[np.arange(n), d["channel"] * g + d["gset"]] = 1.0
+    x_b1 = np.zeros((n, g))
+    x_b1[np.arange(n), d["gset"]] = d["t"]
+    x = np.hstack([x_gain, x_b0, x_b1])
+    prior_mean = np.r_[np.full(c, GAIN_PRIOR[0]), np.full(c * g, OFFSET_PRIOR[0]), np.zeros(g)]
+    prior_var = np.r_[np.full(c, GAIN_PRIOR[1] ** 2), np.full(c * g, OFFSET_PRIOR[1] ** 2), np.full(g, SLOPE_PRIOR_SD**2)]
+    w = d["n_avg"] / d["var_meas"]
+    precision = x.T @ (w[:, None] * x) + np.diag(1 / prior_var)
+    cov = np.linalg.inv(precision)
+    mean = cov @ (x.T @ (w * d["y"]) + prior_mean / prior_var)
+
+    program = program_for(model)
+    result = laplace(program, model.data, initial_point(model, program))
+    names = sorted(program.unravel(program.z0))
+    assert names == ["G", "b0", "b1"]  # ravel order matches the design matrix
+    np.testing.assert_allclose(result.mode, mean, rtol=1e-6, atol=0)
+    np.testing.assert_allclose(result.cov, cov, rtol=1e-6, atol=1e-6 * np.abs(cov).max())
