@@ -17,8 +17,9 @@ def read_nist(name):
         m = re.match(r"\s*(B\d+)\s+([-+\dEe.]+)\s+([-+\dEe.]+)", line)
         if m:
             cert[m.group(1)] = (float(m.group(2)), float(m.group(3)))
-    resid_sd = next(float(line.split()[-1]) for line in lines if line.strip().startswith("Standard Deviation"))
-    r2 = next(float(line.split()[-1]) for line in lines if "R-Squared" in line)
+    number = r"\s+([-+\dEe.]+)\s*$"
+    resid_sd = next(float(m.group(1)) for line in lines if (m := re.match(r"\s*Standard Deviation" + number, line)))
+    r2 = next(float(m.group(1)) for line in lines if (m := re.match(r"\s*R-Squared" + number, line)))
     start = max(i for i, line in enumerate(lines) if line.strip().startswith("Data:"))
     data = np.array([[float(v) for v in line.split()] for line in lines[start + 1 :] if line.strip()])
     return cert, resid_sd, r2, data
