@@ -9,9 +9,9 @@ compilations across processes.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
