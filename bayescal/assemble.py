@@ -48,8 +48,13 @@ class Parts:
         r, d, n, s = self.response, self.dark, self.noise, self.sphere
         items = [f"response: order {r.spec.order}" + (", pooled nonlinearity" if r.n_terms and r.spec.pooled else "")]
         items.append(f"dark: {d.spec.gain_dependence}" + (", exposure slope" if d.spec.exposure_slope else ""))
-        items.append(f"noise: {n.spec.kind}" + (f", excess (scale {n.spec.excess_dn:g} DN)" if n.spec.excess_dn else ""))
-        items.append(f"sphere: common {s.spec.common_rel:.1%} folded in" + (f", {s.n_levels} level errors" if s.per_level else ""))
+        items.append(
+            f"noise: {n.spec.kind}" + (f", excess (scale {n.spec.excess_dn:g} DN)" if n.spec.excess_dn else "")
+        )
+        items.append(
+            f"sphere: common {s.spec.common_rel:.1%} folded in"
+            + (f", {s.n_levels} level errors" if s.per_level else "")
+        )
         items.append("saturation: censored" if self.saturation.spec.censor else "saturation: not modelled")
         return items
 

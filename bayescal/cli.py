@@ -110,7 +110,10 @@ def _cmd_demo(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     sim.table.write_csv(out / "measurements.csv")
     print(f"Simulated the seed 000 Bayer CCD: {len(sim.table)} rows, sphere scale error {sim.sphere_scale - 1:+.2%}")
-    print("True gains (DN per W m^-2 sr^-1 at gain 1, 1/250 s): " + ", ".join(f"{c} {v[0]:g}" for c, v in sim.truth.response.items()))
+    print(
+        "True gains (DN per W m^-2 sr^-1 at gain 1, 1/250 s): "
+        + ", ".join(f"{c} {v[0]:g}" for c, v in sim.truth.response.items())
+    )
     return _run_fit(sim.table, spec, args.backend, args.seed, out, args.quiet)
 
 

@@ -125,7 +125,9 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
         per = df.loc[~dark].groupby("level")["radiance_u_rel"].max()
         level_sigma = np.array([per[lv] for lv in levels])
     if spec.noise.kind == "measured" and "dn_var" not in df:
-        raise TableError("noise.kind = 'measured' needs a 'dn_var' column (per-pixel temporal variance, DN^2)", column="dn_var")
+        raise TableError(
+            "noise.kind = 'measured' needs a 'dn_var' column (per-pixel temporal variance, DN^2)", column="dn_var"
+        )
     var_meas = df["dn_var"].to_numpy() / dn_scale**2 if "dn_var" in df else np.ones(len(df))
 
     x_scale = float(np.max(x))

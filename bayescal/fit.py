@@ -53,7 +53,21 @@ REPORTED = (
     "excess_dn",
     "sphere_scale",
 )
-SAMPLED = ("G", "eta", "b0", "b1", "level_z", "excess", "logG_mu", "logG_tau", "logG_z", "eta_mu", "eta_tau", "b0_mu", "b0_tau")
+SAMPLED = (
+    "G",
+    "eta",
+    "b0",
+    "b1",
+    "level_z",
+    "excess",
+    "logG_mu",
+    "logG_tau",
+    "logG_z",
+    "eta_mu",
+    "eta_tau",
+    "b0_mu",
+    "b0_tau",
+)
 
 
 @dataclass(frozen=True)
@@ -113,12 +127,16 @@ class Fit:
         order = self.model.spec.response.order
         rows = []
         lsq = self.lsq
-        at_ref = lsq[
-            np.isclose(lsq.get("exposure_s", np.nan), ref.exposure_s)
-            & np.isclose(lsq.get("gain", np.nan), ref.gain)
-            & np.isclose(lsq.get("tdi_stages", np.nan), ref.tdi_stages)
-            & (lsq.get("order", -1) == order)
-        ] if len(lsq) else lsq
+        at_ref = (
+            lsq[
+                np.isclose(lsq.get("exposure_s", np.nan), ref.exposure_s)
+                & np.isclose(lsq.get("gain", np.nan), ref.gain)
+                & np.isclose(lsq.get("tdi_stages", np.nan), ref.tdi_stages)
+                & (lsq.get("order", -1) == order)
+            ]
+            if len(lsq)
+            else lsq
+        )
         post = None if self.posterior is None else self.posterior["posterior"]
         for ci, channel in enumerate(self.model.layout.channels):
             lrow = at_ref[at_ref["channel"] == channel] if len(at_ref) else at_ref
@@ -153,7 +171,11 @@ class Fit:
             "backend": self.backend,
             "seed": self.seed,
             "bayescal_version": __version__,
-            "model": {"name": spec.name, "components": self.model.parts.describe(), "reference": spec.to_dict()["reference"]},
+            "model": {
+                "name": spec.name,
+                "components": self.model.parts.describe(),
+                "reference": spec.to_dict()["reference"],
+            },
             "stimulus_unit": layout.unit,
             "diagnostics": self.diagnostics.to_dict(),
             "timings_s": self.timings,
@@ -213,7 +235,9 @@ def fit(
     timings["map"] = time.perf_counter() - t1
     extra = {"map_converged": result.converged, "hessian_positive_definite": result.positive_definite}
     if not result.positive_definite:
-        _fail(strict, "the posterior mode's Hessian is not positive definite: the model is not identified by these data")
+        _fail(
+            strict, "the posterior mode's Hessian is not positive definite: the model is not identified by these data"
+        )
     t2 = time.perf_counter()
     divergences, stats = 0, {}
     if backend == "laplace":
@@ -223,7 +247,12 @@ def fit(
     elif backend == "nuts":
         out = run_nuts(program, model.data, result.mode, result.cov, spec.inference, seed, progress)
         z, divergences = out.z, int(out.diverging.sum())
-        stats = {"diverging": out.diverging, "tree_steps": out.num_steps, "accept_prob": out.accept_prob, "energy": out.energy}
+        stats = {
+            "diverging": out.diverging,
+            "tree_steps": out.num_steps,
+            "accept_prob": out.accept_prob,
+            "energy": out.energy,
+        }
     else:
         z, acc, tau = run_emcee(program, model.data, result.mode, result.cov, spec.inference, seed)
         extra.update(acceptance_fraction=acc, max_autocorr_steps=float(np.max(tau)))
@@ -255,7 +284,13 @@ def _diagnose(backend, post, divergences, spec, extra, result) -> Diagnostics:
     if backend == "laplace":
         problems = () if (result.positive_definite and result.converged) else ("MAP did not converge",)
         return Diagnostics(not problems, problems, extra=extra)
-    ds = xr.Dataset({k: (("chain", "draw") + tuple(f"{k}_{i}" for i in range(v.ndim - 2)), v) for k, v in post.items() if k != "sphere_scale"})
+    ds = xr.Dataset(
+        {
+            k: (("chain", "draw") + tuple(f"{k}_{i}" for i in range(v.ndim - 2)), v)
+            for k, v in post.items()
+            if k != "sphere_scale"
+        }
+    )
     settings = spec.inference
     if backend == "emcee":  # walkers are not independent chains: judge ESS from the autocorrelation time
         n_eff = ds.sizes["chain"] * ds.sizes["draw"] / extra["max_autocorr_steps"]
@@ -287,7 +322,9 @@ def _coords(model: CalibrationModel) -> dict:
 
 def _table_dataset(table: MeasurementTable) -> xr.Dataset:
     df = table.to_frame().reset_index(drop=True)
-    ds = xr.Dataset({c: ("row", df[c].to_numpy().astype(str) if df[c].dtype == object else df[c].to_numpy()) for c in df})
+    ds = xr.Dataset(
+        {c: ("row", df[c].to_numpy().astype(str) if df[c].dtype == object else df[c].to_numpy()) for c in df}
+    )
     ds.attrs.update(stimulus=table.stimulus, unit=table.unit, source=table.source)
     return ds
 

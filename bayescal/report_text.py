@@ -27,7 +27,8 @@ def render_summary(result) -> str:
     cmp = result.comparison
     if len(cmp) == 0:
         return "\n".join(lines)
-    header = f"{'ch':>4} {'coef':>4} {'least squares [95% CI]':>34} {'Bayes vs sphere [95%]':>34} {'Bayes absolute [95%]':>34}"
+    titles = ("least squares [95% CI]", "Bayes vs sphere [95%]", "Bayes absolute [95%]")
+    header = f"{'ch':>4} {'coef':>4} " + " ".join(f"{t:>34}" for t in titles)
     lines += [header, "-" * len(header)]
     for _, r in cmp.iterrows():
         cells = [f"{r['channel']:>4}", f"{r['coefficient']:>4}"]

@@ -80,7 +80,7 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
     true_stim = nominal * scale * (1.0 + np.where(lvl >= 0, level_err[np.maximum(lvl, 0)], 0.0))
     t, g, m = (rows[k].to_numpy() for k in ("exposure_s", "gain", "tdi_stages"))
     x = effective_stimulus(true_stim, t, g, m, spec)
-    signal = np.array([np.polyval(np.r_[truth.response[c][::-1], 0.0], xi) for c, xi in zip(ch, x)])
+    signal = np.array([np.polyval(np.r_[truth.response[c][::-1], 0.0], xi) for c, xi in zip(ch, x, strict=True)])
     g_rel = g / spec.reference.gain
     offset = _dark(truth, g, t, g_rel, spec) + np.array([truth.channel_offset.get(c, 0.0) for c in ch]) * (
         g_rel if truth.dark_proportional else 1.0

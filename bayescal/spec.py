@@ -237,7 +237,9 @@ def _build(cls: type, data: dict[str, Any], source: str, prefix: str) -> Any:
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(data) - names
     if unknown:
-        raise SpecError(f"{source}: unknown key(s) {sorted(prefix + k for k in unknown)}; expected one of {sorted(names)}")
+        raise SpecError(
+            f"{source}: unknown key(s) {sorted(prefix + k for k in unknown)}; expected one of {sorted(names)}"
+        )
     kwargs = {}
     for f in dataclasses.fields(cls):
         if f.name not in data:
@@ -310,6 +312,8 @@ def _to_toml(d: dict[str, Any]) -> str:
 
     top = [f"{k} = {fmt(v)}" for k, v in d.items() if not isinstance(v, dict)]
     sections = [
-        f"\n[{k}]\n" + "\n".join(f"{kk} = {fmt(vv)}" for kk, vv in v.items()) for k, v in d.items() if isinstance(v, dict)
+        f"\n[{k}]\n" + "\n".join(f"{kk} = {fmt(vv)}" for kk, vv in v.items())
+        for k, v in d.items()
+        if isinstance(v, dict)
     ]
     return "\n".join(top) + "\n" + "\n".join(sections) + "\n"

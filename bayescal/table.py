@@ -174,7 +174,7 @@ def _channel_column(col: pd.Series) -> pd.Series:
 def _numeric(col: pd.Series, name: str) -> pd.Series:
     as_str = col.astype("string").str.strip()
     num = pd.to_numeric(as_str, errors="coerce")
-    for i, (raw, val) in enumerate(zip(as_str, num)):
+    for i, (raw, val) in enumerate(zip(as_str, num, strict=True)):
         if pd.isna(raw) or raw == "" or str(raw).lower() == "nan":
             raise TableError("missing value (empty or NaN); expected a number", row=i + 1, column=name)
         if pd.isna(val):

@@ -34,7 +34,9 @@ def test_linear_gaussian_posterior(seed000):
     x_b1[np.arange(n), d["gset"]] = d["t"]
     x = np.hstack([x_gain, x_b0, x_b1])
     prior_mean = np.r_[np.full(c, GAIN_PRIOR[0]), np.full(c * g, OFFSET_PRIOR[0]), np.zeros(g)]
-    prior_var = np.r_[np.full(c, GAIN_PRIOR[1] ** 2), np.full(c * g, OFFSET_PRIOR[1] ** 2), np.full(g, SLOPE_PRIOR_SD**2)]
+    prior_var = np.r_[
+        np.full(c, GAIN_PRIOR[1] ** 2), np.full(c * g, OFFSET_PRIOR[1] ** 2), np.full(g, SLOPE_PRIOR_SD**2)
+    ]
     w = d["n_avg"] / d["var_meas"]
     precision = x.T @ (w[:, None] * x) + np.diag(1 / prior_var)
     cov = np.linalg.inv(precision)

@@ -10,7 +10,7 @@ from bayescal.cli import main
 
 def good_frame():
     rows = []
-    for level, lum in enumerate([0.0, 5.0, 10.0, 15.0, 20.0]):
+    for lum in [0.0, 5.0, 10.0, 15.0, 20.0]:
         for ch, gain in (("R", 60.0), ("G", 30.0)):
             rows.append(dict(channel=ch, radiance=lum, exposure_s=0.004, gain=1.0, dn_mean=50 + gain * lum))
     return pd.DataFrame(rows)

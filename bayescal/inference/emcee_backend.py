@@ -2,8 +2,8 @@
 
 Walkers start in a small ball drawn from the Laplace Gaussian; the log
 density is the jitted program, vectorised over walkers (one call per step).
-Runs in the whitened coordinates ``z = mode + L w`` where the stretch move's
-affine invariance is not even needed, but its mixing is better conditioned.
+Runs in the whitened coordinates ``z = mode + L w``, where the posterior is
+close to isotropic.
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ def run_emcee(program: Program, data: ModelData, mode: np.ndarray, cov: np.ndarr
     rng = np.random.default_rng(seed)
     start = 0.5 * rng.standard_normal((walkers, dim))
     moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
-    sampler = emcee.EnsembleSampler(walkers, dim, log_prob, vectorize=True, moves=moves, seed=seed)
-    sampler._random = np.random.mtrand.RandomState(seed)
+    sampler = emcee.EnsembleSampler(walkers, dim, log_prob, vectorize=True, moves=moves)
+    sampler.random_state = np.random.RandomState(seed).get_state()
     sampler.run_mcmc(start, settings.emcee_burn + settings.emcee_steps, progress=False)
     w = sampler.get_chain(discard=settings.emcee_burn)  # (draw, walker, dim)
     z = mode + np.einsum("dwk,jk->wdj", w, chol)

@@ -110,8 +110,3 @@ def laplace_draws(result: LaplaceResult, n: int, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     chol = np.linalg.cholesky(result.cov + 1e-300 * np.eye(result.cov.shape[0]))
     return result.mode + rng.standard_normal((n, result.mode.size)) @ chol.T
-
-
-def jnp_array(x) -> jax.Array:
-    """Float64 JAX array."""
-    return jnp.asarray(x, dtype=float)

@@ -131,7 +131,7 @@ def lsq_baseline(table: MeasurementTable, orders=(1,), full_scale: float | None 
                 continue
             fit = polyfit(grp["stimulus"].to_numpy(), grp["dn_mean"].to_numpy(), order)
             lo, hi = fit.ci()
-            row = dict(zip(keys, key), order=order, n=fit.n, r2=fit.r2, sse=fit.sse, rmse=fit.rmse)
+            row = dict(zip(keys, key, strict=True), order=order, n=fit.n, r2=fit.r2, sse=fit.sse, rmse=fit.rmse)
             for k in range(order + 1):
                 row.update({f"A{k}": fit.coef[k], f"A{k}_se": fit.se[k], f"A{k}_lo": lo[k], f"A{k}_hi": hi[k]})
             rows.append(row)

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 from numpyro.infer import init_to_median
-from numpyro.infer.util import constrain_fn, initialize_model, log_likelihood, potential_energy
+from numpyro.infer.util import constrain_fn, initialize_model, potential_energy
 
 from ..assemble import CalibrationModel, Parts, numpyro_model
 from ..data import ModelData
@@ -43,8 +43,6 @@ class Program:
     constrain : callable
         ``constrain(z_batch, data)``: dict of constrained sites (and
         deterministic sites) for a batch of flat vectors.
-    loglik : callable
-        ``loglik(z_batch, data)``: per-row log likelihood for a batch.
     """
 
     model: Callable
@@ -54,7 +52,6 @@ class Program:
     value_and_grad: Callable
     hessian: Callable
     constrain: Callable
-    loglik: Callable
 
     @property
     def dim(self) -> int:
@@ -90,10 +87,6 @@ def _program(parts: Parts, shape_key: tuple, example_key: tuple) -> Program:
     def constrain_one(z, data):
         return constrain_fn(model, (data,), {}, unravel(z), return_deterministic=True)
 
-    def loglik(zs, data):
-        params = jax.vmap(lambda z: constrain_fn(model, (data,), {}, unravel(z)))(zs)
-        return log_likelihood(model, params, data, batch_ndims=1)["obs"]
-
     return Program(
         model=model,
         z0=z0,
@@ -102,7 +95,6 @@ def _program(parts: Parts, shape_key: tuple, example_key: tuple) -> Program:
         value_and_grad=jax.jit(jax.value_and_grad(potential)),
         hessian=jax.jit(jax.hessian(potential)),
         constrain=jax.jit(jax.vmap(constrain_one, in_axes=(0, None))),
-        loglik=jax.jit(loglik),
     )
 
 
