@@ -71,8 +71,12 @@ def _run_fit(table, spec, backend, seed, out: Path, quiet: bool) -> int:
     from .progress import progress_bar
     from .report_text import render_summary
 
-    total = spec.inference.warmup + spec.inference.draws
-    with progress_bar(total, f"{backend} ({spec.inference.chains} chains)", quiet or backend != "nuts") as tick:
+    inf = spec.inference
+    if backend == "emcee":
+        total, desc = inf.emcee_burn + inf.emcee_steps, "emcee (ensemble steps)"
+    else:
+        total, desc = inf.warmup + inf.draws, f"nuts ({inf.chains} chains)"
+    with progress_bar(total, desc, quiet or backend not in ("nuts", "emcee")) as tick:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FitFailedWarning)  # reported below, loudly
             result = fit(table, spec, backend, seed=seed, progress=tick)

@@ -216,7 +216,8 @@ def fit(
     seed : int
         Seed of every random number (chains, jitter, sphere-scale draws).
     progress : callable, optional
-        ``progress(iterations_done)`` for NUTS.
+        ``progress(iterations_done)`` for NUTS (per chain, warmup included)
+        and emcee (ensemble steps, burn-in included).
     strict : bool
         Raise :class:`FitFailedError` instead of warning when diagnostics fail.
     """
@@ -254,18 +255,23 @@ def fit(
             "energy": out.energy,
         }
     else:
-        z, acc, tau = run_emcee(program, model.data, result.mode, result.cov, spec.inference, seed)
-        extra.update(acceptance_fraction=acc, max_autocorr_steps=float(np.max(tau)))
+        out = run_emcee(program, model.data, result.mode, result.cov, spec.inference, seed, progress)
+        z = out.z
+        extra.update(
+            acceptance_fraction=out.acceptance, max_autocorr_steps=out.autocorr_steps, n_eff=out.n_eff, thin=out.thin
+        )
     timings[backend] = time.perf_counter() - t2
     post = _posterior(model, program, z, seed)
     diag = _diagnose(backend, post, divergences, spec, extra, result)
     if not diag.ok:
         _fail(strict, f"fit failed its diagnostics: {diag.verdict}")
-    dt = az.from_dict(
-        {"posterior": post, **({"sample_stats": stats} if stats else {})},
-        dims={k: v for k, v in DIMS.items() if k in post},
-        coords=_coords(model),
-    )
+    with warnings.catch_warnings():  # emcee has more walkers than thinned draws, by design
+        warnings.filterwarnings("ignore", "Found chain dimension", UserWarning)
+        dt = az.from_dict(
+            {"posterior": post, **({"sample_stats": stats} if stats else {})},
+            dims={k: v for k, v in DIMS.items() if k in post},
+            coords=_coords(model),
+        )
     dt.attrs.update(spec_toml=spec.to_toml(), backend=backend, seed=seed, bayescal_version=__version__)
     dt["measurements"] = xr.DataTree(_table_dataset(table))
     return Fit(model, backend, seed, dt, diag, lsq, timings)
@@ -293,7 +299,7 @@ def _diagnose(backend, post, divergences, spec, extra, result) -> Diagnostics:
     )
     settings = spec.inference
     if backend == "emcee":  # walkers are not independent chains: judge ESS from the autocorrelation time
-        n_eff = ds.sizes["chain"] * ds.sizes["draw"] / extra["max_autocorr_steps"]
+        n_eff = extra["n_eff"]
         problems = () if n_eff >= settings.min_ess else (f"effective sample size {n_eff:.0f} < {settings.min_ess:.0f}",)
         return Diagnostics(not problems, problems, min_ess_bulk=n_eff, extra=extra)
     return mcmc_diagnostics(ds, divergences, settings, extra)

@@ -43,6 +43,17 @@ def test_laplace_matches_nuts(fits):
         assert np.all(np.abs(a.std(axis=0) - b.std(axis=0)) <= 0.2 * sd), name
 
 
+def test_emcee_matches_nuts(fits, seed000):
+    sim, nuts, _ = fits
+    spec, _ = seed000
+    emc = bc.fit(sim.table, spec, "emcee", seed=11)
+    assert emc.diagnostics.ok, emc.diagnostics.verdict
+    for name in ("A_rel", "gain", "dark_offset", "nonlinearity"):
+        a, b = nuts.draws(name), emc.draws(name)
+        z = np.abs(a.mean(axis=0) - b.mean(axis=0)) / a.std(axis=0)
+        assert np.all(z <= 0.2), (name, z.max())
+
+
 def test_saved_outputs_match_summary(fits, tmp_path):
     import json
 

@@ -3,27 +3,35 @@
 A :class:`Program` holds the model's log density in the *flat unconstrained*
 space as jitted functions of ``(z, data)``: data are arguments, never
 closed over, so every dataset of one shape reuses one compilation.  Programs
-are cached by structure; JAX's persistent cache (``bayescal._config``) keeps
-compilations across processes.
+are cached by structure (components and array shapes); JAX's persistent
+cache (``bayescal._config``) keeps the compilations across processes.
+
+Nothing here runs numpyro eagerly: the parameter layout comes from
+``jax.eval_shape`` of one model trace, so building a program costs a trace,
+not hundreds of small op-by-op compilations.
 """
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import lru_cache
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
-from numpyro.infer import init_to_median
-from numpyro.infer.util import constrain_fn, initialize_model, potential_energy
+from numpyro import handlers
+from numpyro.distributions.transforms import biject_to
+from numpyro.infer.util import constrain_fn, potential_energy, unconstrain_fn
 
 from ..assemble import CalibrationModel, Parts, numpyro_model
 from ..data import ModelData
 
 __all__ = ["Program", "program_for"]
+
+_MAX_PROGRAMS = 32
+_CACHE: OrderedDict[tuple, Program] = OrderedDict()
 
 
 @dataclass(frozen=True, eq=False)
@@ -33,7 +41,10 @@ class Program:
     Attributes
     ----------
     z0 : jax.Array
-        Flat unconstrained starting point (prior medians).
+        Flat unconstrained origin (zeros): every latent at the centre of its
+        unconstrained space (unit scales, zero non-centred offsets, linear
+        response).  :func:`bayescal.inference.start.initial_point` replaces
+        the data-dependent parts.
     unravel : callable
         Flat vector -> dict of unconstrained sites.
     potential : callable
@@ -43,6 +54,9 @@ class Program:
     constrain : callable
         ``constrain(z_batch, data)``: dict of constrained sites (and
         deterministic sites) for a batch of flat vectors.
+    unconstrain : callable
+        ``unconstrain(values, data)``: flat unconstrained vector of a dict of
+        constrained values (one per latent site).
     """
 
     model: Callable
@@ -52,40 +66,60 @@ class Program:
     value_and_grad: Callable
     hessian: Callable
     constrain: Callable
+    unconstrain: Callable
 
     @property
     def dim(self) -> int:
         """Number of unconstrained parameters."""
         return int(self.z0.size)
 
+    @property
+    def sites(self) -> tuple[str, ...]:
+        """Names of the latent sites, in flat-vector order."""
+        return tuple(self.unravel(self.z0))
+
 
 def program_for(model: CalibrationModel) -> Program:
-    """The cached program of ``model``'s structure."""
-    register_example(model)
-    return _program(model.parts, model.layout.shape_key, _example_key(model.data))
+    """The cached program of ``model``'s structure (built on first use)."""
+    key = (model.parts, model.layout.shape_key, _shape_key(model.data))
+    program = _CACHE.get(key)
+    if program is None:
+        program = _build(model.parts, model.data)
+        _CACHE[key] = program
+        if len(_CACHE) > _MAX_PROGRAMS:
+            _CACHE.popitem(last=False)
+    else:
+        _CACHE.move_to_end(key)
+    return program
 
 
-def _example_key(data: ModelData) -> tuple:
+def _shape_key(data: ModelData) -> tuple:
     return tuple((np.shape(x), str(jnp.asarray(x).dtype)) for x in data)
 
 
-_EXAMPLES: dict[tuple, ModelData] = {}
-
-
-@lru_cache(maxsize=32)
-def _program(parts: Parts, shape_key: tuple, example_key: tuple) -> Program:
+def _build(parts: Parts, example: ModelData) -> Program:
     model = numpyro_model(parts)
-    example = _EXAMPLES[(parts, shape_key, example_key)]
-    info = initialize_model(
-        jax.random.PRNGKey(0), model, model_args=(example,), init_strategy=init_to_median(num_samples=31)
-    )
-    z0, unravel = ravel_pytree(info.param_info.z)
+
+    def latent_unconstrained(data):
+        tr = handlers.trace(handlers.seed(model, 0)).get_trace(data)
+        return {
+            name: biject_to(site["fn"].support).inv(site["value"])
+            for name, site in tr.items()
+            if site["type"] == "sample" and not site["is_observed"]
+        }
+
+    shapes = jax.eval_shape(latent_unconstrained, example)
+    z0, unravel = ravel_pytree(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
 
     def potential(z, data):
         return potential_energy(model, (data,), {}, unravel(z))
 
     def constrain_one(z, data):
         return constrain_fn(model, (data,), {}, unravel(z), return_deterministic=True)
+
+    def unconstrain(values, data):
+        z = unconstrain_fn(model, (data,), {}, values)
+        return ravel_pytree({k: z[k] for k in shapes})[0]
 
     return Program(
         model=model,
@@ -95,9 +129,5 @@ def _program(parts: Parts, shape_key: tuple, example_key: tuple) -> Program:
         value_and_grad=jax.jit(jax.value_and_grad(potential)),
         hessian=jax.jit(jax.hessian(potential)),
         constrain=jax.jit(jax.vmap(constrain_one, in_axes=(0, None))),
+        unconstrain=jax.jit(unconstrain),
     )
-
-
-def register_example(model: CalibrationModel) -> None:
-    """Remember an example dataset of this structure (needed to trace the model once)."""
-    _EXAMPLES.setdefault((model.parts, model.layout.shape_key, _example_key(model.data)), model.data)

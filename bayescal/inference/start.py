@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
-from jax.flatten_util import ravel_pytree
-from numpyro.infer.util import unconstrain_fn
 
 from ..assemble import CalibrationModel
 from .program import Program
@@ -50,9 +48,7 @@ def initial_point(model: CalibrationModel, program: Program) -> jnp.ndarray:
     if "excess" in values:
         values["excess"] = max(rms, 1e-6)
     values = {k: v for k, v in values.items() if k in init}
-    z = unconstrain_fn(program.model, (model.data,), {}, {k: jnp.asarray(v) for k, v in values.items()})
-    flat, _ = ravel_pytree({k: z[k] for k in init})
-    return flat
+    return program.unconstrain({k: jnp.asarray(v, dtype=float) for k, v in values.items()}, model.data)
 
 
 def _dark_offsets(d: dict, dark: np.ndarray, c: int, g: int, prop: bool) -> np.ndarray:
