@@ -47,7 +47,13 @@ def fresh_process(backend: str, cache: bool) -> float:
     env.pop("BAYESCAL_NO_CACHE", None)
     if not cache:
         env["BAYESCAL_NO_CACHE"] = "1"
-    args = [sys.executable, "-c", CHILD, str(ROOT / "models/seed000_bayer.toml"), str(ROOT / "models/seed000_design.toml")]
+    args = [
+        sys.executable,
+        "-c",
+        CHILD,
+        str(ROOT / "models/seed000_bayer.toml"),
+        str(ROOT / "models/seed000_design.toml"),
+    ]
     out = subprocess.run(args + [backend], env=env, capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])["fit_s"]
 
