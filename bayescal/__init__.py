@@ -14,11 +14,16 @@ from ._config import enable_compilation_cache, enable_float64
 enable_float64()
 
 from .assemble import CalibrationModel, build_model  # noqa: E402
+from .calibration import CalibratedRange, Calibration, Setting  # noqa: E402
 from .design import Design, Truth, load_design  # noqa: E402
 from .diagnostics import Diagnostics  # noqa: E402
 from .errors import BayescalError, FitFailedError, FitFailedWarning, SpecError, TableError  # noqa: E402
 from .fit import BACKENDS, Fit, fit  # noqa: E402
+from .images import invert_image, read_image, write_radiance_maps  # noqa: E402
 from .inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit  # noqa: E402
+from .invert import Inversion, invert, radiance_draws  # noqa: E402
+from .plan import Plan, default_window, plan_exposure  # noqa: E402
+from .predict import predict  # noqa: E402
 from .simulate import Simulation, simulate  # noqa: E402
 from .spec import ModelSpec, load_spec  # noqa: E402
 from .table import MeasurementTable, load_table  # noqa: E402
@@ -27,28 +32,41 @@ __all__ = [
     "__version__",
     "BACKENDS",
     "BayescalError",
+    "CalibratedRange",
+    "Calibration",
     "CalibrationModel",
     "Design",
     "Diagnostics",
     "Fit",
     "FitFailedError",
     "FitFailedWarning",
+    "Inversion",
     "LinearFit",
     "MeasurementTable",
     "ModelSpec",
+    "Plan",
+    "Setting",
     "Simulation",
     "SpecError",
     "TableError",
     "Truth",
     "build_model",
+    "default_window",
     "enable_compilation_cache",
     "enable_float64",
     "fit",
+    "invert",
+    "invert_image",
     "load_design",
     "load_spec",
     "load_table",
     "lsq_baseline",
     "lstsq",
+    "plan_exposure",
     "polyfit",
+    "predict",
+    "radiance_draws",
+    "read_image",
     "simulate",
+    "write_radiance_maps",
 ]

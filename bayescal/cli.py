@@ -1,4 +1,4 @@
-"""Command line: ``bayescal fit | simulate | demo``.
+"""Command line: ``bayescal fit | predict | invert | plan | simulate | demo``.
 
 Exit codes: 0 success, 2 bad input (the message names the row/column or
 key), 3 a fit that failed its diagnostics (outputs are still written, marked
@@ -25,7 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     enable_compilation_cache()
     try:
         return args.func(args)
-    except BayescalError as exc:
+    except (BayescalError, FileNotFoundError) as exc:
         print(f"bayescal: error: {exc}", file=sys.stderr)
         return 2
 
@@ -41,6 +41,41 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--quiet", action="store_true", help="no progress bar")
     f.set_defaults(func=_cmd_fit)
+    pr = sub.add_parser("predict", help="posterior predictive DN at a (possibly unmeasured) setting")
+    pr.add_argument("posterior", help="fit directory or its posterior.nc")
+    _setting_args(pr, required=True)
+    pr.add_argument("--radiance", "--stimulus", dest="stimulus", type=_floats, help="stimulus values (comma list)")
+    pr.add_argument("--channel", action="append", help="channel(s) (default all)")
+    pr.add_argument("--n-avg", type=float, default=1.0, help="pixels x frames averaged per reading (default 1)")
+    pr.add_argument("--out", help="also write the table as CSV")
+    pr.add_argument("--seed", type=int, default=0)
+    pr.set_defaults(func=_cmd_predict)
+    iv = sub.add_parser("invert", help="radiance posterior of DN values or an image (median and 95 %% interval)")
+    iv.add_argument("posterior", help="fit directory or its posterior.nc")
+    iv.add_argument("image", nargs="?", help="TIFF, PNG or NPY image")
+    iv.add_argument("--dn", type=_floats, help="DN values instead of an image (comma list)")
+    _setting_args(iv, required=False)
+    iv.add_argument("--cfa", help="Bayer pattern of a raw mosaic: RGGB, BGGR, GRBG, GBRG")
+    iv.add_argument("--channel", help="channel of a single-channel image or of --dn values")
+    iv.add_argument("--channels", help="comma list naming the planes of an (H, W, C) image")
+    iv.add_argument("--n-avg", type=float, default=1.0, help="pixels x frames averaged per value (default 1)")
+    iv.add_argument("--out", help="output directory (image) or CSV (--dn)")
+    iv.add_argument("--seed", type=int, default=0)
+    iv.set_defaults(func=_cmd_invert)
+    pl = sub.add_parser("plan", help="choose gain/exposure/TDI so the next frame lands in a DN window")
+    pl.add_argument("posterior", help="fit directory or its posterior.nc")
+    pl.add_argument("--channel", required=True)
+    pl.add_argument("--dn", type=float, help="reading at the current setting")
+    pl.add_argument("--current", type=_floats, help="current setting: EXPOSURE_S,GAIN[,TDI]")
+    pl.add_argument("--radiance", "--stimulus", dest="stimulus", type=float, help="known scene stimulus instead")
+    pl.add_argument("--exposures", type=_floats, required=True, help="allowed exposures, s (comma list)")
+    pl.add_argument("--gains", type=_floats, default=[1.0], help="allowed gains (comma list)")
+    pl.add_argument("--tdi-stages", type=_floats, default=[1.0], help="allowed TDI stages (comma list)")
+    pl.add_argument("--window", type=_floats, help="target DN window LOW,HIGH (default 1080,1920 scaled to bits)")
+    pl.add_argument("--n-avg", type=float, default=1.0)
+    pl.add_argument("--top", type=int, default=5, help="rows to print")
+    pl.add_argument("--seed", type=int, default=0)
+    pl.set_defaults(func=_cmd_plan)
     s = sub.add_parser("simulate", help="simulate a measurement table from a design with a [truth] table")
     s.add_argument("--design", required=True, help="design TOML (names its spec, holds [truth])")
     s.add_argument("--model", help="model spec (default: the design's)")
@@ -54,6 +89,141 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--quiet", action="store_true")
     d.set_defaults(func=_cmd_demo)
     return p
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got '{text}'") from None
+
+
+def _setting_args(p: argparse.ArgumentParser, required: bool) -> None:
+    p.add_argument("--exposure-s", type=float, required=required, help="exposure time, s")
+    p.add_argument("--gain", type=float, default=None, help="gain factor (default the reference gain)")
+    p.add_argument("--tdi-stages", type=float, default=None, help="TDI stages (default the reference)")
+
+
+def _setting(args, cal):
+    from .calibration import Setting
+
+    ref = cal.reference
+    return Setting(
+        args.exposure_s if args.exposure_s is not None else ref.exposure_s,
+        args.gain if args.gain is not None else ref.gain,
+        args.tdi_stages if args.tdi_stages is not None else ref.tdi_stages,
+    )
+
+
+def _cmd_predict(args) -> int:
+    import numpy as np
+
+    from .calibration import Calibration
+    from .io import write_text_atomic
+    from .predict import predict
+
+    cal = Calibration.load(args.posterior)
+    setting = _setting(args, cal)
+    stim = args.stimulus
+    if stim is None:
+        stim = list(np.linspace(0, cal.calibrated.max_effective / setting.ratio(cal.reference), 7)[1:])
+    table = predict(cal, stim, setting, args.channel, n_avg=args.n_avg, seed=args.seed)
+    print(
+        f"Posterior predictive DN at exposure {setting.exposure_s:g} s, gain {setting.gain:g}, "
+        f"TDI {setting.tdi_stages:g} ({cal.stimulus} in {cal.unit}; 95 % intervals):"
+    )
+    print(table.drop(columns=["exposure_s", "gain", "tdi_stages", "why"]).to_string(index=False, float_format="%.4g"))
+    for why in sorted(set(table.loc[table.extrapolated, "why"])):
+        print(f"EXTRAPOLATION: {why}", file=sys.stderr)
+    if args.out:
+        write_text_atomic(args.out, table.to_csv(index=False, float_format="%.8g"))
+    return 0
+
+
+def _cmd_invert(args) -> int:
+    import numpy as np
+
+    from .calibration import Calibration
+    from .errors import SpecError
+    from .images import invert_image, read_image, write_radiance_maps
+    from .invert import invert
+    from .io import write_text_atomic
+
+    cal = Calibration.load(args.posterior)
+    setting = _setting(args, cal)
+    if (args.image is None) == (args.dn is None):
+        raise SpecError("give an IMAGE or --dn values (one of them)")
+    if args.dn is not None:
+        if not args.channel:
+            raise SpecError("--dn needs --channel")
+        res = invert(cal, np.asarray(args.dn), args.channel, setting, n_avg=args.n_avg, seed=args.seed)
+        table = res.to_frame()
+        print(
+            f"{cal.stimulus} ({cal.unit}) at exposure {setting.exposure_s:g} s, gain {setting.gain:g}, "
+            f"TDI {setting.tdi_stages:g}; 95 % intervals (one-sided where bound says so):"
+        )
+        print(table.to_string(index=False, float_format="%.6g"))
+        if args.out:
+            write_text_atomic(args.out, table.to_csv(index=False, float_format="%.10g"))
+        return 0
+    if not args.out:
+        raise SpecError("inverting an image needs --out DIR")
+    from .progress import progress_bar
+
+    image = read_image(args.image)
+    channels = args.channels.split(",") if args.channels else None
+    with progress_bar(1, "inverting", quiet=False):
+        ds = invert_image(
+            cal,
+            image,
+            setting,
+            cfa=args.cfa,
+            channel=args.channel,
+            channels=channels,
+            n_avg=args.n_avg,
+            seed=args.seed,
+        )
+    ds.attrs["image"] = str(args.image)
+    out = write_radiance_maps(ds, args.out)
+    a = ds.attrs
+    print(
+        f"inverted {image.size} pixels of {args.image}: {a['n_saturated']} clipped (lower bound only), "
+        f"{a['n_below_dark']} at/below dark (upper bound only), {a['n_extrapolated']} beyond the calibrated range"
+    )
+    print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())))
+    return 0
+
+
+def _cmd_plan(args) -> int:
+    import numpy as np
+
+    from .calibration import Calibration, Setting
+    from .plan import plan_exposure
+
+    cal = Calibration.load(args.posterior)
+    current = Setting(*args.current) if args.current else None
+    plan = plan_exposure(
+        cal,
+        args.channel,
+        dn=args.dn,
+        current=current,
+        stimulus=args.stimulus,
+        exposures=args.exposures,
+        gains=args.gains,
+        tdi_stages=args.tdi_stages,
+        window=args.window,
+        n_avg=args.n_avg,
+        seed=args.seed,
+    )
+    lo, hi = plan.window
+    b = plan.best
+    print(f"scene {cal.stimulus}: median {float(np.median(plan.stimulus)):.5g} {cal.unit}")
+    print(
+        f"best: exposure {b.exposure_s:g} s, gain {b.gain:g}, TDI {b.tdi_stages:g} -> "
+        f"P({lo:g} <= DN <= {hi:g}) = {plan.probability:.3f}"
+    )
+    print(plan.table.head(args.top).drop(columns=["why"]).to_string(index=False, float_format="%.4g"))
+    return 0
 
 
 def _cmd_fit(args) -> int:

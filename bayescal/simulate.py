@@ -46,6 +46,35 @@ class Simulation:
             return coef
         return coef * self.sphere_scale ** np.arange(1, coef.size + 1)
 
+    def reading(
+        self,
+        spec: ModelSpec,
+        channel: str,
+        stimulus,
+        exposure_s: float,
+        gain: float = 1.0,
+        tdi_stages: float = 1.0,
+        *,
+        n_avg: float = 1.0,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """Fresh readings of the true camera at true ``stimulus`` (new frames after the calibration).
+
+        ``n_avg == 1``: one pixel, with read/shot noise, the excess scatter,
+        the pixel's PRNU and integer quantisation.  ``n_avg > 1``: a region
+        mean (PRNU averaged away, not quantised).  Clipped to ``[0, full scale]``.
+        """
+        stim = np.asarray(stimulus, dtype=float)
+        t, g, m = (np.full(stim.shape, v, dtype=float) for v in (exposure_s, gain, tdi_stages))
+        mu, signal, var_t = _camera(self.truth, spec, np.full(stim.shape, channel, dtype=object), stim, t, g, m)
+        var = var_t / n_avg + self.truth.excess_dn**2
+        if n_avg == 1:
+            var = var + (self.truth.prnu * signal) ** 2
+        out = mu + np.sqrt(var) * rng.standard_normal(stim.shape)
+        if n_avg == 1:
+            out = np.round(out)
+        return np.clip(out, 0.0, spec.full_scale)
+
 
 def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: int = 0) -> Simulation:
     """Simulate a measurement table.
@@ -79,14 +108,7 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
     nominal = np.where(lvl >= 0, np.asarray(design.levels)[np.maximum(lvl, 0)], 0.0)
     true_stim = nominal * scale * (1.0 + np.where(lvl >= 0, level_err[np.maximum(lvl, 0)], 0.0))
     t, g, m = (rows[k].to_numpy() for k in ("exposure_s", "gain", "tdi_stages"))
-    x = effective_stimulus(true_stim, t, g, m, spec)
-    signal = np.array([np.polyval(np.r_[truth.response[c][::-1], 0.0], xi) for c, xi in zip(ch, x, strict=True)])
-    g_rel = g / spec.reference.gain
-    offset = _dark(truth, g, t, g_rel, spec) + np.array([truth.channel_offset.get(c, 0.0) for c in ch]) * (
-        g_rel if truth.dark_proportional else 1.0
-    )
-    mu = offset + signal
-    var_t = (truth.read_noise_dn * g_rel) ** 2 + truth.conversion_gain * g_rel * np.maximum(signal, 0) + 1 / 12
+    mu, signal, var_t = _camera(truth, spec, ch, true_stim, t, g, m)
     n_avg = design.n_frames * design.n_pixels
     if n_avg == 1:
         reading = mu + np.sqrt(var_t + truth.excess_dn**2) * rng.standard_normal(mu.size)
@@ -117,6 +139,18 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
     table = MeasurementTable.from_frame(df, source=f"simulate(seed={seed})")
     errors = {f"L{i + 1:02d}": float(e) for i, e in enumerate(level_err)}
     return Simulation(table=table, truth=truth, sphere_scale=scale, level_errors=errors)
+
+
+def _camera(truth: Truth, spec: ModelSpec, ch, stimulus, t, g, m):
+    """Expected DN, signal and per-pixel temporal variance of the true camera (DESIGN.md section 2)."""
+    x = effective_stimulus(stimulus, t, g, m, spec)
+    signal = np.array([np.polyval(np.r_[truth.response[c][::-1], 0.0], xi) for c, xi in zip(ch, x, strict=True)])
+    g_rel = g / spec.reference.gain
+    offset = _dark(truth, g, t, g_rel, spec) + np.array([truth.channel_offset.get(c, 0.0) for c in ch]) * (
+        g_rel if truth.dark_proportional else 1.0
+    )
+    var_t = (truth.read_noise_dn * g_rel) ** 2 + truth.conversion_gain * g_rel * np.maximum(signal, 0) + 1 / 12
+    return offset + signal, signal, var_t
 
 
 def _rows(design: Design) -> pd.DataFrame:
