@@ -12,6 +12,7 @@ __version__ = "0.1.0"
 from ._config import enable_compilation_cache, enable_float64
 
 enable_float64()
+enable_compilation_cache()  # compiled programs persist across processes; BAYESCAL_NO_CACHE=1 turns it off
 
 from .assemble import CalibrationModel, build_model  # noqa: E402
 from .calibration import CalibratedRange, Calibration, Setting  # noqa: E402
