@@ -1,6 +1,5 @@
 """Published numbers (seeds 000 and 002) through the prediction code, from fixed published coefficients."""
 
-import numpy as np
 import pytest
 
 import bayescal as bc
