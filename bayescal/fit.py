@@ -27,7 +27,7 @@ from .derived import DIMS, physical_draws
 from .diagnostics import Diagnostics, mcmc_diagnostics
 from .errors import FitFailedError, FitFailedWarning, SpecError
 from .inference.emcee_backend import run_emcee
-from .inference.laplace import laplace, laplace_draws
+from .inference.laplace import integrated_draws, laplace, laplace_draws
 from .inference.lsq import lsq_baseline
 from .inference.nuts import run_nuts
 from .inference.program import program_for
@@ -242,7 +242,13 @@ def fit(
     t2 = time.perf_counter()
     divergences, stats = 0, {}
     if backend == "laplace":
-        z = laplace_draws(result, spec.inference.laplace_draws, seed)[None]
+        scale = program.site_index("excess")
+        if scale is not None and spec.inference.laplace_integrate:
+            z, info = integrated_draws(program, model.data, result, scale, spec.inference.laplace_draws, seed)
+            z = z[None]
+            extra["integrated_scale_edge_weight"] = info["edge_weight"]
+        else:
+            z = laplace_draws(result, spec.inference.laplace_draws, seed)[None]
         if model.parts.response.spec.pooled or model.parts.dark.spec.pooled:
             extra["warning"] = "pooling scales make the Laplace approximation unreliable; use nuts"
     elif backend == "nuts":
@@ -288,8 +294,10 @@ def _posterior(model: CalibrationModel, program, z: np.ndarray, seed: int) -> di
 
 def _diagnose(backend, post, divergences, spec, extra, result) -> Diagnostics:
     if backend == "laplace":
-        problems = () if (result.positive_definite and result.converged) else ("MAP did not converge",)
-        return Diagnostics(not problems, problems, extra=extra)
+        problems = [] if (result.positive_definite and result.converged) else ["MAP did not converge"]
+        if extra.get("integrated_scale_edge_weight", 0.0) > 0.01:
+            problems.append("the excess-scatter integration grid is truncated (posterior far from its mode); use nuts")
+        return Diagnostics(not problems, tuple(problems), extra=extra)
     ds = xr.Dataset(
         {
             k: (("chain", "draw") + tuple(f"{k}_{i}" for i in range(v.ndim - 2)), v)

@@ -34,13 +34,12 @@ def test_intervals_contain_truth_and_lsq_beside(fits):
 
 def test_laplace_matches_nuts(fits):
     _, nuts, lap = fits
-    for name in ("A_rel", "dark_offset"):
+    for name in ("A_rel", "dark_offset", "nonlinearity", "gain", "excess_dn"):
         a, b = nuts.draws(name), lap.draws(name)
         sd = a.std(axis=0)
         assert np.all(np.abs(a.mean(axis=0) - b.mean(axis=0)) <= 0.1 * sd), name
-        # sds agree within 20 % today; the 10 % is not met yet (the excess
-        # scatter's posterior is skewed near zero, which a Gaussian at the mode misses)
-        assert np.all(np.abs(a.std(axis=0) - b.std(axis=0)) <= 0.2 * sd), name
+        # the excess scatter is integrated numerically (a Gaussian at the joint mode is ~10 % too narrow)
+        assert np.all(np.abs(a.std(axis=0) - b.std(axis=0)) <= 0.1 * sd), name
 
 
 def test_emcee_matches_nuts(fits, seed000):

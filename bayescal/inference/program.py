@@ -49,6 +49,8 @@ class Program:
         Flat vector -> dict of unconstrained sites.
     potential : callable
         ``potential(z, data)``: negative log posterior density (with Jacobians).
+    potential_batch : callable
+        ``potential_batch(z_batch, data)``: the same for a batch of flat vectors.
     value_and_grad, hessian : callable
         Its value and gradient, and Hessian, in ``z``.
     constrain : callable
@@ -63,6 +65,7 @@ class Program:
     z0: jax.Array
     unravel: Callable
     potential: Callable
+    potential_batch: Callable
     value_and_grad: Callable
     hessian: Callable
     constrain: Callable
@@ -72,6 +75,14 @@ class Program:
     def dim(self) -> int:
         """Number of unconstrained parameters."""
         return int(self.z0.size)
+
+    def site_index(self, name: str) -> int | None:
+        """Position of a scalar site in the flat vector (None if absent or not scalar)."""
+        sites = self.unravel(self.z0)
+        if name not in sites or jnp.size(sites[name]) != 1:
+            return None
+        marked = {k: (jnp.ones_like(v) if k == name else jnp.zeros_like(v)) for k, v in sites.items()}
+        return int(jnp.argmax(ravel_pytree(marked)[0]))
 
     @property
     def sites(self) -> tuple[str, ...]:
@@ -126,6 +137,7 @@ def _build(parts: Parts, example: ModelData) -> Program:
         z0=z0,
         unravel=unravel,
         potential=jax.jit(potential),
+        potential_batch=jax.jit(jax.vmap(potential, in_axes=(0, None))),
         value_and_grad=jax.jit(jax.value_and_grad(potential)),
         hessian=jax.jit(jax.hessian(potential)),
         constrain=jax.jit(jax.vmap(constrain_one, in_axes=(0, None))),
