@@ -104,6 +104,17 @@ def _compiled(program: Program, settings: tuple):
     return jax.jit(chain)
 
 
+def _whitening(cov: np.ndarray) -> np.ndarray:
+    """``L`` with ``L L^T = cov``; a singular or indefinite ``cov`` (a hierarchical scale at
+    its boundary) gets its eigenvalues floored at 1e-8 of the largest instead."""
+    try:
+        return np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+        w = np.maximum(np.abs(w), 1e-8 * np.abs(w).max())
+        return v * np.sqrt(w)
+
+
 def run_nuts(
     program: Program,
     data: ModelData,
@@ -134,7 +145,7 @@ def run_nuts(
     k_jit, k_chains = jax.random.split(key)
     n = settings.chains
     jitter = jax.random.uniform(k_jit, (n, start.size), minval=-1.0, maxval=1.0)
-    chol = jnp.asarray(np.linalg.cholesky(np.asarray(cov)))
+    chol = jnp.asarray(_whitening(np.asarray(cov)))
     run = _compiled(
         program, (settings.dense_mass, settings.target_accept, settings.max_tree_depth, settings.warmup, settings.draws)
     )
