@@ -40,6 +40,7 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--out", required=True, help="output directory")
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--quiet", action="store_true", help="no progress bar")
+    f.add_argument("--report", action="store_true", help="also write OUT/report.html (+ .json, .md)")
     f.set_defaults(func=_cmd_fit)
     pr = sub.add_parser("predict", help="posterior predictive DN at a (possibly unmeasured) setting")
     pr.add_argument("posterior", help="fit directory or its posterior.nc")
@@ -76,6 +77,11 @@ def _parser() -> argparse.ArgumentParser:
     pl.add_argument("--top", type=int, default=5, help="rows to print")
     pl.add_argument("--seed", type=int, default=0)
     pl.set_defaults(func=_cmd_plan)
+    rp = sub.add_parser("report", help="HTML report (figures embedded) + report.json + report.md of a fit")
+    rp.add_argument("fit_dir", help="directory written by `bayescal fit`")
+    rp.add_argument("--out", help="HTML path (default FIT_DIR/report.html); .json and .md go beside it")
+    rp.add_argument("--seed", type=int, default=0)
+    rp.set_defaults(func=_cmd_report)
     s = sub.add_parser("simulate", help="simulate a measurement table from a design with a [truth] table")
     s.add_argument("--design", required=True, help="design TOML (names its spec, holds [truth])")
     s.add_argument("--model", help="model spec (default: the design's)")
@@ -226,15 +232,32 @@ def _cmd_plan(args) -> int:
     return 0
 
 
+def _cmd_report(args) -> int:
+    from .report import write_report
+
+    fit_dir = Path(args.fit_dir)
+    if not (fit_dir / "summary.json").exists():
+        from .errors import SpecError
+
+        raise SpecError(f"{fit_dir} has no summary.json; expected a directory written by `bayescal fit`")
+    if not (fit_dir / "posterior.nc").exists():
+        from .errors import SpecError
+
+        raise SpecError(f"{fit_dir} holds a least-squares fit (no posterior.nc); a report needs a Bayesian backend")
+    path = write_report(fit_dir, args.out, seed=args.seed)
+    print(f"wrote {path} (+ {path.with_suffix('.json').name}, {path.with_suffix('.md').name})")
+    return 0
+
+
 def _cmd_fit(args) -> int:
     from . import load_spec, load_table
 
     table = load_table(args.data)
     spec = load_spec(args.model)
-    return _run_fit(table, spec, args.backend, args.seed, Path(args.out), args.quiet)
+    return _run_fit(table, spec, args.backend, args.seed, Path(args.out), args.quiet, report=args.report)
 
 
-def _run_fit(table, spec, backend, seed, out: Path, quiet: bool) -> int:
+def _run_fit(table, spec, backend, seed, out: Path, quiet: bool, report: bool = False) -> int:
     import warnings
 
     from . import FitFailedWarning, fit
@@ -252,6 +275,10 @@ def _run_fit(table, spec, backend, seed, out: Path, quiet: bool) -> int:
             result = fit(table, spec, backend, seed=seed, progress=tick)
     result.save(out)
     print(render_summary(result))
+    if report and result.posterior is not None:
+        from .report import write_report
+
+        write_report(out, seed=seed)
     print(f"\nwrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())))
     if not result.ok:
         bar = "!" * 72
@@ -288,7 +315,7 @@ def _cmd_demo(args) -> int:
         "True gains (DN per W m^-2 sr^-1 at gain 1, 1/250 s): "
         + ", ".join(f"{c} {v[0]:g}" for c, v in sim.truth.response.items())
     )
-    return _run_fit(sim.table, spec, args.backend, args.seed, out, args.quiet)
+    return _run_fit(sim.table, spec, args.backend, args.seed, out, args.quiet, report=True)
 
 
 if __name__ == "__main__":

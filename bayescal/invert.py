@@ -102,11 +102,14 @@ def radiance_draws(
     n_avg: float = 1.0,
     prnu: float = 0.0,
     z: np.ndarray | None = None,
+    relative: bool = False,
 ) -> np.ndarray:
     """Stimulus draws ``(len(dn), S)`` for readings ``dn`` (1-D), one per posterior draw.
 
     ``z`` are the standard normals of the noise (one per draw); None means
-    no measurement noise (the expected DN is inverted).
+    no measurement noise (the expected DN is inverted).  ``relative`` uses
+    the coefficients relative to the sphere's scale (no common-scale
+    uncertainty).
     """
     dn = np.asarray(dn, dtype=float)[:, None]
     signal = dn - cal.dark_dn(channel, setting)[None, :]
@@ -118,7 +121,7 @@ def radiance_draws(
         if prnu:
             var += (prnu * pos) ** 2
         signal -= np.sqrt(var, out=var) * z[None, :]
-    coef = cal.coef[:, cal.channel_index(channel), :]  # (S, P)
+    coef = (cal.coef_rel if relative else cal.coef)[:, cal.channel_index(channel), :]  # (S, P)
     x = _solve(coef, signal)
     x /= setting.ratio(cal.reference)
     return x

@@ -188,5 +188,9 @@ def integrated_draws(
         # conditional Gaussian N(mode, H_c^{-1}): z = mode + L^{-T} e with H = L L^T
         e = rng.standard_normal((pick.size, rest.size))
         out[np.ix_(pick, rest)] += np.linalg.solve(chols[c].T, e.T).T
-    info = {"grid_theta": thetas.tolist(), "grid_weight": weights.tolist(), "edge_weight": float(weights[[0, -1]].max())}
+    info = {
+        "grid_theta": thetas.tolist(),
+        "grid_weight": weights.tolist(),
+        "edge_weight": float(weights[[0, -1]].max()),
+    }
     return out, info
