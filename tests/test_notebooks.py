@@ -1,0 +1,38 @@
+"""The example notebooks run top to bottom (Laplace backend for speed) and their key cells hold numbers."""
+
+from pathlib import Path
+
+import nbformat
+import pytest
+from nbclient import NotebookClient
+
+NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
+
+
+def _run(name: str, monkeypatch) -> nbformat.NotebookNode:
+    monkeypatch.setenv("BAYESCAL_NB_BACKEND", "laplace")
+    nb = nbformat.read(NOTEBOOKS / name, as_version=4)
+    NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(NOTEBOOKS)}}).execute()
+    return nb
+
+
+def _text(nb) -> str:
+    out = []
+    for cell in nb.cells:
+        for o in cell.get("outputs", []):
+            if o.get("output_type") == "error":
+                pytest.fail(f"{o['ename']}: {o['evalue']}")
+            out.append(o.get("text", "") or o.get("data", {}).get("text/plain", ""))
+    return "\n".join(out)
+
+
+def test_quickstart_runs(monkeypatch):
+    text = _text(_run("quickstart_seed000.ipynb", monkeypatch))
+    assert "ok | timings" in text and "report.html" in text
+    assert "true A1  30.180" in text
+
+
+def test_seed002_notebook_runs(monkeypatch):
+    text = _text(_run("seed002_tdi_planning.ipynb", monkeypatch))
+    assert "405 DN -> E = 0.11664" in text
+    assert "eq. 12 at M = 96, g = 1.26: 899.8 DN" in text
