@@ -18,11 +18,13 @@ from .assemble import CalibrationModel, build_model  # noqa: E402
 from .calibration import CalibratedRange, Calibration, Setting  # noqa: E402
 from .design import Design, Truth, load_design  # noqa: E402
 from .diagnostics import Diagnostics  # noqa: E402
+from .emva import Steps, load_steps, read_descriptor  # noqa: E402
 from .errors import BayescalError, FitFailedError, FitFailedWarning, SpecError, TableError  # noqa: E402
 from .fit import BACKENDS, Fit, fit  # noqa: E402
 from .images import invert_image, read_image, write_radiance_maps  # noqa: E402
 from .inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit  # noqa: E402
 from .invert import Inversion, invert, radiance_draws  # noqa: E402
+from .photon_transfer import Characterization, characterize, standard_method  # noqa: E402
 from .plan import Plan, default_window, plan_exposure  # noqa: E402
 from .predict import predict  # noqa: E402
 from .simulate import Simulation, simulate  # noqa: E402
@@ -36,6 +38,7 @@ __all__ = [
     "CalibratedRange",
     "Calibration",
     "CalibrationModel",
+    "Characterization",
     "Design",
     "Diagnostics",
     "Fit",
@@ -48,10 +51,12 @@ __all__ = [
     "Plan",
     "Setting",
     "Simulation",
+    "Steps",
     "SpecError",
     "TableError",
     "Truth",
     "build_model",
+    "characterize",
     "default_window",
     "enable_compilation_cache",
     "enable_float64",
@@ -60,6 +65,7 @@ __all__ = [
     "invert_image",
     "load_design",
     "load_spec",
+    "load_steps",
     "load_table",
     "lsq_baseline",
     "lstsq",
@@ -67,7 +73,9 @@ __all__ = [
     "polyfit",
     "predict",
     "radiance_draws",
+    "read_descriptor",
     "read_image",
     "simulate",
+    "standard_method",
     "write_radiance_maps",
 ]

@@ -82,6 +82,11 @@ def _parser() -> argparse.ArgumentParser:
     rp.add_argument("--out", help="HTML path (default FIT_DIR/report.html); .json and .md go beside it")
     rp.add_argument("--seed", type=int, default=0)
     rp.set_defaults(func=_cmd_report)
+    ch = sub.add_parser("characterize", help="EMVA 1288: standard estimates beside posteriors (K, R, QE, dark, ...)")
+    ch.add_argument("input", help="EMVA 1288 descriptor (.txt) with its images, crop128.npz, or a reduced steps.csv")
+    ch.add_argument("--out", required=True, help="output directory")
+    ch.add_argument("--seed", type=int, default=0)
+    ch.set_defaults(func=_cmd_characterize)
     s = sub.add_parser("simulate", help="simulate a measurement table from a design with a [truth] table")
     s.add_argument("--design", required=True, help="design TOML (names its spec, holds [truth])")
     s.add_argument("--model", help="model spec (default: the design's)")
@@ -229,6 +234,26 @@ def _cmd_plan(args) -> int:
         f"P({lo:g} <= DN <= {hi:g}) = {plan.probability:.3f}"
     )
     print(plan.table.head(args.top).drop(columns=["why"]).to_string(index=False, float_format="%.4g"))
+    return 0
+
+
+def _cmd_characterize(args) -> int:
+    from .emva import load_steps
+    from .io import staged_directory, write_json_atomic
+    from .photon_transfer import characterize, plot_curves
+
+    res = characterize(load_steps(args.input), seed=args.seed)
+    out = Path(args.out)
+    with staged_directory(out) as stage:
+        res.table.to_csv(stage("characterization.csv"), index=False, float_format="%.8g")
+        write_json_atomic(stage("characterization.json"), res.to_dict())
+        res.curves.to_csv(stage("curves.csv"), index=False, float_format="%.8g")
+        plot_curves(res, stage("photon_transfer.png"))
+    print(f"EMVA 1288 characterisation of {args.input} (standard point estimate | posterior median [95 %]):")
+    print(res.table.to_string(index=False, float_format="%.5g"))
+    verdict = "compatible" if res.dark_current_compatible else "NOT compatible"
+    print(f"dark current from the mean and from the variance: {verdict} (95 % interval of their difference)")
+    print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())))
     return 0
 
 
