@@ -36,3 +36,9 @@ def test_seed002_notebook_runs(monkeypatch):
     text = _text(_run("seed002_tdi_planning.ipynb", monkeypatch))
     assert "405 DN -> E = 0.11664" in text
     assert "eq. 12 at M = 96, g = 1.26: 899.8 DN" in text
+
+
+def test_ccd_notebook_runs(monkeypatch):
+    text = _text(_run("ccd_emva1288.ipynb", monkeypatch))
+    assert "compatible: True" in text
+    assert "K                  ours    0.28006   reference    0.28006" in text
