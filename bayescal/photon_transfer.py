@@ -139,7 +139,28 @@ def standard_method(steps: Steps) -> tuple[dict, dict]:
         "LE_min": le_min,
         "LE_max": le_max,
     }
+    point.update(_nonuniformity(steps, k))
     return point, r
+
+
+def _spatial(stack: dict) -> tuple[float, float]:
+    """Spatial variances of the averaged bright and dark images, less the residual temporal noise / L."""
+    n = stack["n_images"]
+    bright = stack["spatial_var_bright"] - stack["temporal_var_bright"] / n
+    dark = stack["spatial_var_dark"] - stack["temporal_var_dark"] / n
+    return bright, dark
+
+
+def _nonuniformity(steps: Steps, k) -> dict:
+    """DSNU1288 (e-) and PRNU1288 (%) from the stacks (EMVA 1288 release 3.0 section 8), if present."""
+    if not steps.stack:
+        return {}
+    st = steps.stack
+    s2_bright, s2_dark = _spatial(st)
+    return {
+        "DSNU1288": np.sqrt(np.maximum(s2_dark, 0.0)) / k,
+        "PRNU1288": 100 * np.sqrt(np.maximum(s2_bright - s2_dark, 0.0)) / (st["mean_bright"] - st["mean_dark"]),
+    }
 
 
 def _through_origin(x: np.ndarray, y: np.ndarray) -> float:
@@ -247,6 +268,14 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
         "LE_min": le_min,
         "LE_max": le_max,
     }
+    if steps.stack:
+        # a spatial variance over N pixels has N - 1 degrees of freedom (Jeffreys posterior)
+        st = steps.stack
+        s2_bright, s2_dark = _spatial(st)
+        scale = lambda v: (n_pix - 1) * v / rng.chisquare(n_pix - 1, n_draws)  # noqa: E731
+        sb, sd = scale(max(s2_bright, 0.0)), scale(max(s2_dark, 0.0))
+        draws["DSNU1288"] = np.sqrt(sd) / k
+        draws["PRNU1288"] = 100 * np.sqrt(np.maximum(sb - sd, 0.0)) / (st["mean_bright"] - st["mean_dark"])
     diff = i_mean - i_var
     lo, hi = np.quantile(diff, [0.025, 0.975])
     compatible = bool(lo <= 0.0 <= hi)
@@ -267,6 +296,8 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
         "SNR_max": "1",
         "LE_min": "%",
         "LE_max": "%",
+        "DSNU1288": "e-",
+        "PRNU1288": "%",
     }
     rows = []
     for name, d in draws.items():
