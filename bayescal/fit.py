@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -267,8 +267,9 @@ def fit(
             acceptance_fraction=out.acceptance, max_autocorr_steps=out.autocorr_steps, n_eff=out.n_eff, thin=out.thin
         )
     timings[backend] = time.perf_counter() - t2
-    post = _posterior(model, program, z, seed)
+    post, rows = _posterior(model, program, z, seed)
     diag = _diagnose(backend, post, divergences, spec, extra, result)
+    diag = _check_outliers(model, rows, diag)
     if not diag.ok:
         _fail(strict, f"fit failed its diagnostics: {diag.verdict}")
     with warnings.catch_warnings():  # emcee has more walkers than thinned draws, by design
@@ -283,13 +284,47 @@ def fit(
     return Fit(model, backend, seed, dt, diag, lsq, timings)
 
 
-def _posterior(model: CalibrationModel, program, z: np.ndarray, seed: int) -> dict[str, np.ndarray]:
+def _posterior(model: CalibrationModel, program, z: np.ndarray, seed: int) -> tuple[dict, dict]:
+    """Reported draws, and each row's posterior predictive mean and variance (scaled units)."""
     chains, draws, dim = z.shape
     sites = program.constrain(np.asarray(z).reshape(-1, dim), model.data)
+    rows = {
+        "mean": np.asarray(sites["row_mean"]).mean(axis=0),
+        "var": np.mean(np.asarray(sites["row_sd"]) ** 2, axis=0) + np.var(np.asarray(sites["row_mean"]), axis=0),
+    }
     sites = {k: np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]) for k, v in sites.items()}
     post = {k: v for k, v in sites.items() if k in SAMPLED}
     post.update(physical_draws(model, sites, seed))
-    return post
+    return post, rows
+
+
+#: a row whose reading lies this many predictive sds from the posterior mean is reported (p ~ 6e-7 each)
+OUTLIER_Z = 5.0
+
+
+def _check_outliers(model: CalibrationModel, rows: dict, diag: Diagnostics) -> Diagnostics:
+    """Posterior predictive check per row: name rows the model cannot explain, loudly."""
+    data = model.data
+    z = (np.asarray(data.y) - rows["mean"]) / np.sqrt(rows["var"])
+    z = np.where(np.asarray(data.censored), 0.0, z)
+    worst = np.argsort(-np.abs(z))
+    bad = [int(i) for i in worst if abs(z[i]) > OUTLIER_Z]
+    extra = dict(diag.extra, max_abs_residual_z=float(np.max(np.abs(z))) if z.size else 0.0)
+    if not bad:
+        return replace(diag, extra=extra)
+    frame = model.table.frame
+    scale = model.layout.dn_scale
+    described = []
+    for i in bad[:5]:
+        r = frame.iloc[i]
+        described.append(
+            f"row {i + 1} (channel {r['channel']}, {model.table.stimulus} {r['stimulus']:g}, exposure "
+            f"{r['exposure_s']:g} s, gain {r['gain']:g}): dn_mean {r['dn_mean']:g} is "
+            f"{(float(data.y[i]) - rows['mean'][i]) * scale:+.3g} DN ({z[i]:+.1f} sd) from the model"
+        )
+    more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
+    problem = f"{len(bad)} outlying row(s), e.g. " + "; ".join(described) + more + ": check those frames"
+    return replace(diag, ok=False, problems=diag.problems + (problem,), extra=extra)
 
 
 def _diagnose(backend, post, divergences, spec, extra, result) -> Diagnostics:

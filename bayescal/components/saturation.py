@@ -71,9 +71,11 @@ class Saturation:
         absurd pixel noise could bend the mean curve and fit the data.
         """
         scale = jnp.sqrt(var_mean)
+        numpyro.deterministic("row_sd", scale)
         if not self.spec.censor:
+            numpyro.deterministic("row_mean", mean)
             numpyro.sample("obs", dist.Normal(mean, scale), obs=data.y)
             return
         spread = jnp.sqrt(var_pix_nominal + (self.spec.prnu * signal) ** 2)
-        loc = clipped_mean(mean, spread)
+        loc = numpyro.deterministic("row_mean", clipped_mean(mean, spread))
         numpyro.sample("obs", CensoredNormal(loc, scale, data.threshold, data.censored), obs=data.y)

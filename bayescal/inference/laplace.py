@@ -140,37 +140,51 @@ def integrated_draws(
     dim = result.mode.size
     rest = np.delete(np.arange(dim), index)
     sd = float(np.sqrt(result.cov[index, index]))
-    thetas = result.mode[index] + sd * np.linspace(-5.0, 6.0, grid)
-    modes, chols, logp = [], [], []
-    z = result.mode.copy()
-    order = np.argsort(np.abs(thetas - result.mode[index]))  # walk outwards from the mode: warm starts
-    found = {}
-    for j in order:
-        nearest = min(found, key=lambda k: abs(thetas[k] - thetas[j]), default=None)
+    step = 11.0 * sd / (grid - 1)
+    found: dict[float, tuple] = {}
+
+    def conditional(theta: float) -> None:
+        nearest = min(found, key=lambda t: abs(t - theta), default=None)
         z = (found[nearest][0] if nearest is not None else result.mode).copy()
-        z[index] = thetas[j]
-        hess_r = None
+        z[index] = theta
         for _ in range(newton_steps):
             grad = np.asarray(program.value_and_grad(jnp.asarray(z), data)[1])[rest]
             hess_r = np.asarray(program.hessian(jnp.asarray(z), data))[np.ix_(rest, rest)]
-            hess_r = 0.5 * (hess_r + hess_r.T)
-            step = np.linalg.solve(hess_r, grad)
-            z[rest] -= step
-            if float(step @ hess_r @ step) < 1e-10:
+            delta = np.linalg.solve(0.5 * (hess_r + hess_r.T), grad)
+            z[rest] -= delta
+            if float(delta @ hess_r @ delta) < 1e-10:
                 break
         hess_r = np.asarray(program.hessian(jnp.asarray(z), data))[np.ix_(rest, rest)]
-        hess_r = 0.5 * (hess_r + hess_r.T)
         try:
-            chol_h = np.linalg.cholesky(hess_r)
+            chol_h = np.linalg.cholesky(0.5 * (hess_r + hess_r.T))
         except np.linalg.LinAlgError:
-            continue  # not a local maximum in the rest: leave this grid point out
+            found[theta] = (z, None, -np.inf)  # not a local maximum in the rest: no weight
+            return
         u = float(program.potential(jnp.asarray(z), data))
-        found[j] = (z.copy(), chol_h, -u - np.sum(np.log(np.diag(chol_h))))
-    keep = sorted(found)
-    thetas = thetas[keep]
-    modes = np.array([found[j][0] for j in keep])
-    chols = [found[j][1] for j in keep]
-    logp = np.array([found[j][2] for j in keep])
+        found[theta] = (z, chol_h, -u - np.sum(np.log(np.diag(chol_h))))
+
+    initial = result.mode[index] + step * (np.arange(grid) - 5.0 * (grid - 1) / 11.0)
+    for theta in sorted(initial, key=lambda t: abs(t - result.mode[index])):  # outwards: warm starts
+        conditional(float(theta))
+    for _ in range(4):  # extend the grid while an edge still carries weight (a skewed scale posterior)
+        thetas = np.array(sorted(found))
+        logp = np.array([found[t][2] for t in thetas])
+        w = np.exp(logp - logp.max())
+        w /= w.sum()
+        grow = []
+        if w[0] > 1e-3:
+            grow += [thetas[0] - step * k for k in range(1, grid // 2 + 1)]
+        if w[-1] > 1e-3:
+            grow += [thetas[-1] + step * k for k in range(1, grid // 2 + 1)]
+        if not grow:
+            break
+        for theta in grow:
+            conditional(float(theta))
+    keep = [t for t in sorted(found) if found[t][1] is not None]
+    thetas = np.array(keep)
+    modes = np.array([found[t][0] for t in keep])
+    chols = [found[t][1] for t in keep]
+    logp = np.array([found[t][2] for t in keep])
     width = np.gradient(thetas) if thetas.size > 1 else np.full(1, sd)
     weights = np.exp(logp - logp.max()) * width
     weights /= weights.sum()
