@@ -87,6 +87,14 @@ def _parser() -> argparse.ArgumentParser:
     ch.add_argument("--out", required=True, help="output directory")
     ch.add_argument("--seed", type=int, default=0)
     ch.set_defaults(func=_cmd_characterize)
+    se = sub.add_parser("select", help="compare polynomial orders / components by PSIS-LOO (F-test beside it)")
+    se.add_argument("data", help="CSV or Parquet measurement table")
+    se.add_argument("--model", required=True, help="base model spec (TOML)")
+    se.add_argument("--orders", type=_floats, default=[1, 2, 3], help="orders to compare (default 1,2,3)")
+    se.add_argument("--without", default="", help="components to try switching off: level_errors,excess,exposure_slope")
+    se.add_argument("--backend", default="laplace", choices=["nuts", "laplace", "emcee"])
+    se.add_argument("--seed", type=int, default=0)
+    se.set_defaults(func=_cmd_select)
     s = sub.add_parser("simulate", help="simulate a measurement table from a design with a [truth] table")
     s.add_argument("--design", required=True, help="design TOML (names its spec, holds [truth])")
     s.add_argument("--model", help="model spec (default: the design's)")
@@ -254,6 +262,29 @@ def _cmd_characterize(args) -> int:
     verdict = "compatible" if res.dark_current_compatible else "NOT compatible"
     print(f"dark current from the mean and from the variance: {verdict} (95 % interval of their difference)")
     print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())))
+    return 0
+
+
+def _cmd_select(args) -> int:
+    import warnings
+
+    from . import FitFailedWarning, load_spec, load_table
+    from .select import compare_specs, f_test_orders, order_candidates
+
+    table, spec = load_table(args.data), load_spec(args.model)
+    off = tuple(x for x in args.without.split(",") if x)
+    specs = order_candidates(spec, tuple(int(o) for o in args.orders), off)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FitFailedWarning)
+        cmp = compare_specs(table, specs, backend=args.backend, seed=args.seed)
+    print("PSIS-LOO (elpd_diff: this model minus the best; dse: its standard error):")
+    print(cmp.to_string(float_format="%.2f"))
+    best = cmp.index[0]
+    print(f"best: {best}" + ("" if cmp.iloc[0]["fit_ok"] else " (its fit FAILED its diagnostics)"))
+    ft = f_test_orders(table, spec, max_order=max(int(o) for o in args.orders))
+    if len(ft):
+        print("\nleast-squares F-test per channel at the reference setting (baseline):")
+        print(ft.to_string(index=False, float_format="%.4g"))
     return 0
 
 

@@ -274,9 +274,15 @@ def fit(
         _fail(strict, f"fit failed its diagnostics: {diag.verdict}")
     with warnings.catch_warnings():  # emcee has more walkers than thinned draws, by design
         warnings.filterwarnings("ignore", "Found chain dimension", UserWarning)
+        chains, draws, dim = np.shape(z)
+        loglik = np.asarray(program.loglik(np.asarray(z).reshape(-1, dim), model.data)).reshape(chains, draws, -1)
         dt = az.from_dict(
-            {"posterior": post, **({"sample_stats": stats} if stats else {})},
-            dims={k: v for k, v in DIMS.items() if k in post},
+            {
+                "posterior": post,
+                "log_likelihood": {"obs": loglik},
+                **({"sample_stats": stats} if stats else {}),
+            },
+            dims={**{k: v for k, v in DIMS.items() if k in post}, "obs": ["row"]},
             coords=_coords(model),
         )
     dt.attrs.update(spec_toml=spec.to_toml(), backend=backend, seed=seed, bayescal_version=__version__)

@@ -23,7 +23,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 from numpyro import handlers
 from numpyro.distributions.transforms import biject_to
-from numpyro.infer.util import constrain_fn, potential_energy, unconstrain_fn
+from numpyro.infer.util import constrain_fn, log_likelihood, potential_energy, unconstrain_fn
 
 from ..assemble import CalibrationModel, Parts, numpyro_model
 from ..data import ModelData
@@ -59,6 +59,9 @@ class Program:
     unconstrain : callable
         ``unconstrain(values, data)``: flat unconstrained vector of a dict of
         constrained values (one per latent site).
+    loglik : callable
+        ``loglik(z_batch, data)``: pointwise log-likelihood of every row,
+        ``(batch, n_rows)`` (for PSIS-LOO).
     """
 
     model: Callable
@@ -70,6 +73,7 @@ class Program:
     hessian: Callable
     constrain: Callable
     unconstrain: Callable
+    loglik: Callable
 
     @property
     def dim(self) -> int:
@@ -132,6 +136,10 @@ def _build(parts: Parts, example: ModelData) -> Program:
         z = unconstrain_fn(model, (data,), {}, values)
         return ravel_pytree({k: z[k] for k in shapes})[0]
 
+    def loglik_one(z, data):
+        params = constrain_fn(model, (data,), {}, unravel(z))
+        return log_likelihood(model, params, data, batch_ndims=0)["obs"]
+
     return Program(
         model=model,
         z0=z0,
@@ -142,4 +150,5 @@ def _build(parts: Parts, example: ModelData) -> Program:
         hessian=jax.jit(jax.hessian(potential)),
         constrain=jax.jit(jax.vmap(constrain_one, in_axes=(0, None))),
         unconstrain=jax.jit(unconstrain),
+        loglik=jax.jit(jax.vmap(loglik_one, in_axes=(0, None))),
     )
