@@ -24,6 +24,7 @@ from .fit import BACKENDS, Fit, fit  # noqa: E402
 from .images import invert_image, read_image, write_radiance_maps  # noqa: E402
 from .inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit  # noqa: E402
 from .invert import Inversion, invert, radiance_draws  # noqa: E402
+from .nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves  # noqa: E402
 from .photon_transfer import Characterization, characterize, standard_method  # noqa: E402
 from .plan import Plan, default_window, plan_exposure  # noqa: E402
 from .predict import predict  # noqa: E402
@@ -57,6 +58,7 @@ __all__ = [
     "Truth",
     "build_model",
     "characterize",
+    "compare_nonlinearity",
     "default_window",
     "enable_compilation_cache",
     "enable_float64",
@@ -69,6 +71,7 @@ __all__ = [
     "load_table",
     "lsq_baseline",
     "lstsq",
+    "patent_baseline",
     "plan_exposure",
     "polyfit",
     "predict",
@@ -76,6 +79,7 @@ __all__ = [
     "read_descriptor",
     "read_image",
     "simulate",
+    "simulate_curves",
     "standard_method",
     "write_radiance_maps",
 ]
