@@ -36,17 +36,24 @@ __all__ = ["Calibration", "Setting", "CalibratedRange"]
 
 @dataclass(frozen=True)
 class Setting:
-    """Camera setting: exposure (s), programmable gain factor, TDI stages."""
+    """Camera setting: exposure (s), programmable gain factor, TDI stages, sensor temperature (degC).
+
+    ``temperature_c = None`` means the calibration's reference temperature
+    (it matters only for a calibration with a temperature-dependent dark current).
+    """
 
     exposure_s: float
     gain: float = 1.0
     tdi_stages: float = 1.0
+    temperature_c: float | None = None
 
     def __post_init__(self):
         for name in ("exposure_s", "gain", "tdi_stages"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
                 raise SpecError(f"setting {name} must be a positive number, got {value!r}")
+        if self.temperature_c is not None and not np.isfinite(self.temperature_c):
+            raise SpecError(f"setting temperature_c must be a number, got {self.temperature_c!r}")
 
     def ratio(self, ref: Reference) -> float:
         """Factor from stimulus to effective stimulus: ``t M g / (t_ref M_ref g_ref)``."""
@@ -61,6 +68,7 @@ class CalibratedRange:
     gains: tuple[float, ...] = ()
     tdi_stages: tuple[float, float] = (0.0, np.inf)
     max_effective: float = np.inf  # largest unsaturated effective stimulus x
+    temperature_c: tuple[float, float] | None = None  # calibrated sensor temperatures, when recorded
 
     def flags(self, setting: Setting) -> list[str]:
         """Reasons this setting is outside the calibrated range (empty: inside)."""
@@ -73,6 +81,10 @@ class CalibratedRange:
         lo, hi = self.tdi_stages
         if not lo <= setting.tdi_stages <= hi:
             out.append(f"TDI stages {setting.tdi_stages:g} outside calibrated {lo:g}-{hi:g}")
+        if self.temperature_c is not None and setting.temperature_c is not None:
+            lo, hi = self.temperature_c
+            if not lo <= setting.temperature_c <= hi:
+                out.append(f"temperature {setting.temperature_c:g} degC outside calibrated {lo:g}-{hi:g} degC")
         return out
 
 
@@ -117,6 +129,8 @@ class Calibration:
     margin_dn: float = 0.5
     calibrated: CalibratedRange = field(default_factory=CalibratedRange)
     source: str = ""
+    temperature_ref_c: float = 20.0
+    doubling_c: np.ndarray | None = None  # (S,) dark-current doubling temperature; None: no T dependence
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -201,6 +215,8 @@ class Calibration:
             margin_dn=spec.saturation.margin_dn,
             calibrated=_calibrated_range(frame, spec),
             source=source,
+            temperature_ref_c=spec.dark.temperature_ref_c,
+            doubling_c=flat(draws["doubling_c"]) if "doubling_c" in draws else None,
         )
 
     @classmethod
@@ -281,11 +297,17 @@ class Calibration:
             ) from None
 
     def dark_dn(self, channel: str, setting: Setting) -> np.ndarray:
-        """Dark level (DN) per draw at ``setting``: offset plus dark slope times exposure."""
+        """Dark level (DN) per draw at ``setting``: offset plus dark current times exposure.
+
+        With a temperature model the dark current scales by ``2^((T - T_ref) / T_d)``.
+        """
         c = self.channel_index(channel)
+        t_eff = setting.exposure_s
+        if self.doubling_c is not None and setting.temperature_c is not None:
+            t_eff = setting.exposure_s * np.exp2((setting.temperature_c - self.temperature_ref_c) / self.doubling_c)
         if self.dark_proportional:
             g_rel = setting.gain / self.dark_gains[0]
-            return (self.dark_offset[:, c, 0] + self.dark_slope[:, 0] * setting.exposure_s) * g_rel
+            return (self.dark_offset[:, c, 0] + self.dark_slope[:, 0] * t_eff) * g_rel
         matches = np.flatnonzero(np.isclose(self.dark_gains, setting.gain))
         if matches.size == 0:
             raise SpecError(
@@ -293,7 +315,7 @@ class Calibration:
                 f"(dark.gain_dependence = 'per_setting'); calibrated gains: {list(self.dark_gains)}"
             )
         gi = int(matches[0])
-        return self.dark_offset[:, c, gi] + self.dark_slope[:, gi] * setting.exposure_s
+        return self.dark_offset[:, c, gi] + self.dark_slope[:, gi] * t_eff
 
     def signal_dn(self, channel: str, x: np.ndarray, relative: bool = False) -> np.ndarray:
         """Signal (DN) per draw for effective stimulus ``x``: shape ``(S,) + x.shape``."""
@@ -365,11 +387,15 @@ def _calibrated_range(frame, spec: ModelSpec) -> CalibratedRange:
     x = effective_stimulus(f["stimulus"].to_numpy(), f["exposure_s"].to_numpy(), f["gain"].to_numpy(), tdi, spec)
     unsat = f["dn_mean"].to_numpy() < spec.full_scale - spec.saturation.margin_dn
     max_x = float(np.max(x[lit & unsat])) if np.any(lit & unsat) else np.inf
+    temps = None
+    if "temperature_c" in f and np.isfinite(f["temperature_c"]).any():
+        temps = (float(np.nanmin(f["temperature_c"])), float(np.nanmax(f["temperature_c"])))
     return CalibratedRange(
         exposure_s=(float(f["exposure_s"].min()), float(f["exposure_s"].max())),
         gains=tuple(sorted({float(g) for g in f["gain"]})),
         tdi_stages=(float(np.min(tdi)), float(np.max(tdi))),
         max_effective=max_x,
+        temperature_c=temps,
     )
 
 

@@ -121,6 +121,7 @@ def _setting_args(p: argparse.ArgumentParser, required: bool) -> None:
     p.add_argument("--exposure-s", type=float, required=required, help="exposure time, s")
     p.add_argument("--gain", type=float, default=None, help="gain factor (default the reference gain)")
     p.add_argument("--tdi-stages", type=float, default=None, help="TDI stages (default the reference)")
+    p.add_argument("--temperature-c", type=float, default=None, help="sensor temperature, degC (default reference)")
 
 
 def _setting(args, cal):
@@ -131,6 +132,7 @@ def _setting(args, cal):
         args.exposure_s if args.exposure_s is not None else ref.exposure_s,
         args.gain if args.gain is not None else ref.gain,
         args.tdi_stages if args.tdi_stages is not None else ref.tdi_stages,
+        args.temperature_c,
     )
 
 

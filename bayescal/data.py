@@ -38,6 +38,7 @@ class ModelData(NamedTuple):
     n_avg: jnp.ndarray  # n_frames * n_pixels
     censored: jnp.ndarray  # bool, right-censored at the threshold
     threshold: jnp.ndarray  # scalar, censoring threshold / full scale
+    temp: jnp.ndarray  # temperature - dark.temperature_ref_c (degC; 0 without a temperature model)
 
 
 @dataclass(frozen=True)
@@ -129,6 +130,14 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
             "noise.kind = 'measured' needs a 'dn_var' column (per-pixel temporal variance, DN^2)", column="dn_var"
         )
     var_meas = df["dn_var"].to_numpy() / dn_scale**2 if "dn_var" in df else np.ones(len(df))
+    temp = np.zeros(len(df))
+    if spec.dark.temperature:
+        if "temperature_c" not in df:
+            raise TableError(
+                "dark.temperature = true needs a 'temperature_c' column (sensor temperature, degC)",
+                column="temperature_c",
+            )
+        temp = df["temperature_c"].to_numpy() - spec.dark.temperature_ref_c
 
     x_scale = float(np.max(x))
     t_scale = float(df["exposure_s"].max())
@@ -145,6 +154,7 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
         n_avg=jnp.asarray((df["n_frames"] * df["n_pixels"]).to_numpy()),
         censored=jnp.asarray(censored),
         threshold=jnp.asarray(threshold),
+        temp=jnp.asarray(temp, dtype=float),
     )
     layout = Layout(
         channels=channels,

@@ -28,6 +28,7 @@ class Block:
     gain: tuple[float, ...] = (1.0,)
     tdi_stages: tuple[float, ...] = (1.0,)
     levels: tuple[int, ...] | None = None  # indices into Design.levels; None: all
+    temperature_c: tuple[float, ...] | None = None  # sensor temperatures (None: not recorded)
 
     def settings(self) -> list[tuple[float, float, float]]:
         """Every (exposure, gain, tdi) combination of the block."""
@@ -70,6 +71,8 @@ class Truth:
     sphere_scale: float | None = None
     common_rel: float = 0.03
     level_rel: float = 0.0
+    dark_doubling_c: float | None = None  # dark current doubles every this many degC (None: no T effect)
+    temperature_ref_c: float = 20.0
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "<truth>") -> Truth:
@@ -139,6 +142,7 @@ def _block(b: dict[str, Any]) -> Block:
         gain=floats("gain", (1.0,)),
         tdi_stages=floats("tdi_stages", (1.0,)),
         levels=None if levels == "all" else tuple(int(i) for i in levels),
+        temperature_c=floats("temperature_c", ()) or None,
     )
 
 

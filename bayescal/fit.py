@@ -51,6 +51,7 @@ REPORTED = (
     "dark_slope_ref",
     "level_error",
     "excess_dn",
+    "doubling_c",
     "sphere_scale",
 )
 SAMPLED = (
@@ -60,6 +61,7 @@ SAMPLED = (
     "b1",
     "level_z",
     "excess",
+    "T_d",
     "logG_mu",
     "logG_tau",
     "logG_z",

@@ -107,8 +107,8 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
     lvl = rows["level_index"].to_numpy()
     nominal = np.where(lvl >= 0, np.asarray(design.levels)[np.maximum(lvl, 0)], 0.0)
     true_stim = nominal * scale * (1.0 + np.where(lvl >= 0, level_err[np.maximum(lvl, 0)], 0.0))
-    t, g, m = (rows[k].to_numpy() for k in ("exposure_s", "gain", "tdi_stages"))
-    mu, signal, var_t = _camera(truth, spec, ch, true_stim, t, g, m)
+    t, g, m, temp = (rows[k].to_numpy() for k in ("exposure_s", "gain", "tdi_stages", "temperature_c"))
+    mu, signal, var_t = _camera(truth, spec, ch, true_stim, t, g, m, temp)
     n_avg = design.n_frames * design.n_pixels
     if n_avg == 1:
         reading = mu + np.sqrt(var_t + truth.excess_dn**2) * rng.standard_normal(mu.size)
@@ -130,6 +130,7 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
             "gain": g,
             "tdi_stages": m,
             "level": np.where(lvl >= 0, [f"L{i + 1:02d}" for i in np.maximum(lvl, 0)], ""),
+            **({"temperature_c": temp} if np.any(np.isfinite(temp)) else {}),
             "n_frames": design.n_frames,
             "n_pixels": design.n_pixels,
             "dn_mean": np.round(dn_mean, 3),
@@ -141,12 +142,16 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
     return Simulation(table=table, truth=truth, sphere_scale=scale, level_errors=errors)
 
 
-def _camera(truth: Truth, spec: ModelSpec, ch, stimulus, t, g, m):
+def _camera(truth: Truth, spec: ModelSpec, ch, stimulus, t, g, m, temperature=None):
     """Expected DN, signal and per-pixel temporal variance of the true camera (DESIGN.md section 2)."""
     x = effective_stimulus(stimulus, t, g, m, spec)
     signal = np.array([np.polyval(np.r_[truth.response[c][::-1], 0.0], xi) for c, xi in zip(ch, x, strict=True)])
     g_rel = g / spec.reference.gain
-    offset = _dark(truth, g, t, g_rel, spec) + np.array([truth.channel_offset.get(c, 0.0) for c in ch]) * (
+    doubling = np.ones_like(t, dtype=float)
+    if truth.dark_doubling_c is not None and temperature is not None:
+        temp = np.where(np.isfinite(temperature), temperature, truth.temperature_ref_c)
+        doubling = np.exp2((temp - truth.temperature_ref_c) / truth.dark_doubling_c)
+    offset = _dark(truth, g, t * doubling, g_rel, spec) + np.array([truth.channel_offset.get(c, 0.0) for c in ch]) * (
         g_rel if truth.dark_proportional else 1.0
     )
     var_t = (truth.read_noise_dn * g_rel) ** 2 + truth.conversion_gain * g_rel * np.maximum(signal, 0) + 1 / 12
@@ -157,12 +162,15 @@ def _rows(design: Design) -> pd.DataFrame:
     records = []
     for block in design.illuminated:
         levels = block.levels if block.levels is not None else range(len(design.levels))
-        for (t, g, m), i, c in _product(block.settings(), levels, design.channels):
-            records.append((c, i, t, g, m))
+        for temp in block.temperature_c or (np.nan,):
+            for (t, g, m), i, c in _product(block.settings(), levels, design.channels):
+                records.append((c, i, t, g, m, temp))
     for block in design.dark:
-        for (t, g, m), c in ((s, c) for s in block.settings() for c in design.channels):
-            records.append((c, -1, t, g, m))
-    return pd.DataFrame(records, columns=["channel", "level_index", "exposure_s", "gain", "tdi_stages"])
+        for temp in block.temperature_c or (np.nan,):
+            for (t, g, m), c in ((s, c) for s in block.settings() for c in design.channels):
+                records.append((c, -1, t, g, m, temp))
+    cols = ["channel", "level_index", "exposure_s", "gain", "tdi_stages", "temperature_c"]
+    return pd.DataFrame(records, columns=cols)
 
 
 def _product(settings, levels, channels):

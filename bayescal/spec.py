@@ -72,11 +72,20 @@ class DarkSpec:
     factor instead (seed 002 eq. 12, DN = g (... + 28.72)), which also
     predicts unmeasured gains.  ``pooled`` partially pools the channel
     offsets (seed 000: channel colour barely matters for dark).
+
+    ``temperature``: the dark current (the exposure slope) doubles every
+    ``T_d`` degC, ``slope(T) = slope(T_ref) 2^((T - T_ref) / T_d)`` (seed 002:
+    about 7 degC), with ``T_d`` log-normal around ``doubling_c`` (relative sd
+    ``doubling_rel_sd``); the table needs a ``temperature_c`` column.
     """
 
     gain_dependence: Literal["per_setting", "proportional"] = "per_setting"
     exposure_slope: bool = True
     pooled: bool = True
+    temperature: bool = False
+    temperature_ref_c: float = 20.0
+    doubling_c: float = 7.0
+    doubling_rel_sd: float = 0.4
 
 
 @dataclass(frozen=True)
@@ -304,6 +313,8 @@ def _check_spec(spec: ModelSpec) -> None:
         (spec.noise.conversion_gain > 0, "noise.conversion_gain must be > 0"),
         (spec.noise.excess_dn >= 0, "noise.excess_dn must be >= 0"),
         (spec.saturation.margin_dn >= 0, "saturation.margin_dn must be >= 0"),
+        (not spec.dark.temperature or spec.dark.exposure_slope, "dark.temperature needs dark.exposure_slope = true"),
+        (spec.dark.doubling_c > 0 and spec.dark.doubling_rel_sd > 0, "dark.doubling_c and doubling_rel_sd must be > 0"),
         (spec.saturation.prnu >= 0, "saturation.prnu must be >= 0"),
         (spec.inference.chains >= 1 and spec.inference.draws >= 10, "inference needs chains >= 1 and draws >= 10"),
         (0 < spec.inference.target_accept < 1, "inference.target_accept must be in (0, 1)"),

@@ -53,7 +53,11 @@ class Dark:
             offset = b0[data.channel, data.gset]
         if self.spec.exposure_slope:
             b1 = numpyro.sample("b1", dist.Normal(0.0, SLOPE_PRIOR_SD).expand([g]).to_event(1))
-            offset = offset + (b1[0] * data.g_rel if self.proportional else b1[data.gset]) * data.t
+            slope = b1[0] * data.g_rel if self.proportional else b1[data.gset]
+            if self.spec.temperature:  # dark current doubles every T_d degC (seed 002)
+                t_d = numpyro.sample("T_d", dist.LogNormal(jnp.log(self.spec.doubling_c), self.spec.doubling_rel_sd))
+                slope = slope * jnp.exp2(data.temp / t_d)
+            offset = offset + slope * data.t
         return offset
 
     def offset_dn(
@@ -84,8 +88,12 @@ class Dark:
             out = {"dark_offset_ref": b0[..., 0]}
             if slope is not None:
                 out["dark_slope_ref"] = slope[..., 0]
-            return out
+            return out | self._doubling(draws)
         out = {"dark_offset": b0}
         if slope is not None:
             out["dark_slope"] = slope
-        return out
+        return out | self._doubling(draws)
+
+    @staticmethod
+    def _doubling(draws: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {"doubling_c": draws["T_d"]} if "T_d" in draws else {}

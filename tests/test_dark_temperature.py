@@ -1,0 +1,59 @@
+"""Dark current against temperature (seed 002: doubles about every 7 degC): fitted doubling temperature,
+dark predictions at unmeasured temperatures, flagged when extrapolating."""
+
+import dataclasses
+import warnings
+
+import numpy as np
+import pytest
+
+import bayescal as bc
+from bayescal.design import Block
+
+
+@pytest.fixture(scope="module")
+def thermal(seed000):
+    spec, design = seed000
+    spec = spec.replace(dark={"temperature": True, "temperature_ref_c": 20.0})
+    temps = (10.0, 20.0, 30.0)
+    truth = dataclasses.replace(
+        design.truth,
+        dark_doubling_c=7.0,
+        temperature_ref_c=20.0,
+        dark_slope={1.0: 2000.0, 2.0: 4000.0, 3.0: 6000.0, 4.0: 8000.0},
+    )
+    blocks = tuple(dataclasses.replace(b, temperature_c=(20.0,)) for b in design.illuminated)
+    dark = (Block((0.0027, 0.004, 0.008, 0.01), (1.0, 2.0, 3.0, 4.0), temperature_c=temps),)
+    design = dataclasses.replace(design, illuminated=blocks, dark=dark, truth=truth)
+    sim = bc.simulate(spec, design, seed=61)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", bc.FitFailedWarning)
+        fit = bc.fit(sim.table, spec, "laplace", seed=61)
+    return spec, sim, fit
+
+
+def test_doubling_temperature_recovered(thermal):
+    _, _, fit = thermal
+    assert fit.ok, fit.diagnostics.verdict
+    row = fit.summary.loc["doubling_c"]
+    assert row["q2.5"] <= 7.0 <= row["q97.5"]
+    assert row["q97.5"] - row["q2.5"] < 2.0  # three temperatures pin it to about +-0.5 degC
+
+
+def test_dark_prediction_at_unmeasured_temperature(thermal):
+    spec, sim, fit = thermal
+    cal = bc.Calibration.from_fit(fit)
+    hot = bc.Setting(0.01, 4.0, temperature_c=25.0)
+    dark = cal.dark_dn("G", hot)
+    true = 460.0 - 1.0 + 8000.0 * 0.01 * 2 ** (5 / 7)  # offset + channel offset + slope t 2^((T - 20) / 7)
+    lo, hi = np.quantile(dark, [0.005, 0.995])
+    assert lo <= true <= hi
+    assert cal.flags(hot) == []
+    assert any("temperature 40" in f for f in cal.flags(bc.Setting(0.01, 4.0, temperature_c=40.0)))
+
+
+def test_temperature_column_required(seed000):
+    spec, design = seed000
+    sim = bc.simulate(spec, design, seed=62)  # no temperatures recorded
+    with pytest.raises(bc.TableError, match="temperature_c"):
+        bc.fit(sim.table, spec.replace(dark={"temperature": True}), "laplace")
