@@ -170,6 +170,18 @@ def _cmd_invert(args) -> int:
     from .invert import invert
     from .io import write_text_atomic
 
+    if (Path(args.posterior) / "film_draws.npz").exists():
+        from .film import load_film_fits
+
+        fits = load_film_fits(args.posterior)
+        if args.channel not in fits or args.dn is None:
+            raise SpecError(f"a film fit inverts --dn densities of one --channel band ({', '.join(fits)})")
+        table = fits[args.channel].invert(np.asarray(args.dn))
+        print(f"band {args.channel} radiance (mW sr^-1 cm^-2) from film density; 95 % intervals:")
+        print(table.to_string(index=False, float_format="%.5g"))
+        if args.out:
+            write_text_atomic(args.out, table.to_csv(index=False, float_format="%.8g"))
+        return 0
     cal = Calibration.load(args.posterior)
     setting = _setting(args, cal)
     if (args.image is None) == (args.dn is None):
@@ -307,8 +319,40 @@ def _cmd_report(args) -> int:
     return 0
 
 
+def _is_film(path) -> bool:
+    import tomllib
+
+    try:
+        return tomllib.loads(Path(path).read_text()).get("kind") == "film"
+    except (OSError, tomllib.TOMLDecodeError):
+        return False
+
+
+def _cmd_fit_film(args) -> int:
+    import numpy as np
+
+    from .film import fit_film, load_film_spec, load_film_table, save_film_fits
+
+    spec = load_film_spec(args.model)
+    data = load_film_table(args.data)
+    fits = {band: fit_film(spec, band, current, dens, seed=args.seed) for band, (current, dens) in data.items()}
+    save_film_fits(fits, args.out)
+    for band, f in fits.items():
+        g, d0 = f.draws["gamma"], f.draws["D0"]
+        status = "ok" if f.diagnostics["ok"] else f"FAILED {f.diagnostics}"
+        print(
+            f"{band}: gamma {np.median(g):.4g} [{np.quantile(g, 0.025):.4g}, {np.quantile(g, 0.975):.4g}], "
+            f"D0 {np.median(d0):.4g} [{np.quantile(d0, 0.025):.4g}, {np.quantile(d0, 0.975):.4g}] ({status})"
+        )
+    print(f"wrote {args.out}/: film_draws.npz, film_summary.json")
+    return 0 if all(f.diagnostics["ok"] for f in fits.values()) else 3
+
+
 def _cmd_fit(args) -> int:
     from . import load_spec, load_table
+
+    if _is_film(args.model):
+        return _cmd_fit_film(args)
 
     table = load_table(args.data)
     spec = load_spec(args.model)

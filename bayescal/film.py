@@ -337,3 +337,60 @@ def uncertainty_budget_film(spec: FilmSpec, band: str, n: int = 20000, seed: int
         }
     )
     return pd.DataFrame(rows)
+
+
+def load_film_table(path) -> dict[str, tuple[float, np.ndarray]]:
+    """Read wedge densities: CSV with ``band, step, density, meter_current`` (one row per band and wedge step).
+
+    ``step`` runs 1..10 (the wedge's steps), ``meter_current`` is the
+    radiance meter's reading on the reference target for that band (the same
+    on every row of the band).  Returns ``{band: (current, densities by step)}``.
+    """
+    df = pd.read_csv(path)
+    need = ["band", "step", "density", "meter_current"]
+    for col in need:
+        if col not in df:
+            raise TableError(f"{path}: missing column '{col}'; expected {need}", column=col)
+    out = {}
+    for band, g in df.groupby("band", sort=False):
+        g = g.sort_values("step")
+        bad = g[~np.isfinite(pd.to_numeric(g["density"], errors="coerce"))]
+        if len(bad):
+            raise TableError(f"{path}: density is not a number", row=int(bad.index[0]) + 1, column="density")
+        currents = g["meter_current"].unique()
+        if currents.size != 1:
+            raise TableError(
+                f"{path}: band {band} has several meter_current values {list(currents)}", column="meter_current"
+            )
+        out[str(band)] = (float(currents[0]), g["density"].to_numpy(dtype=float))
+    return out
+
+
+def save_film_fits(fits: dict[str, FilmFit], out_dir) -> Path:
+    """Write ``film_draws.npz`` (per band draws) and ``film_summary.json`` atomically."""
+    from .io import staged_directory, write_json_atomic
+
+    out_dir = Path(out_dir)
+    arrays = {f"{b}/{k}": np.asarray(v) for b, f in fits.items() for k, v in f.draws.items()}
+    summary = {}
+    for b, f in fits.items():
+        summary[b] = {"diagnostics": f.diagnostics}
+        for k in ("gamma", "D0", "L_ref"):
+            q = np.quantile(f.draws[k], [0.025, 0.5, 0.975])
+            summary[b][k] = {"median": q[1], "q2.5": q[0], "q97.5": q[2]}
+    with staged_directory(out_dir) as stage:
+        with open(stage("film_draws.npz"), "wb") as fh:
+            np.savez(fh, **arrays)
+        write_json_atomic(stage("film_summary.json"), {"kind": "film", "bands": summary})
+    return out_dir
+
+
+def load_film_fits(fit_dir, spec: FilmSpec | None = None) -> dict[str, FilmFit]:
+    """Read what :func:`save_film_fits` wrote."""
+    path = Path(fit_dir) / "film_draws.npz"
+    data = np.load(path)
+    bands: dict[str, dict] = {}
+    for key in data.files:
+        b, k = key.split("/", 1)
+        bands.setdefault(b, {})[k] = data[key]
+    return {b: FilmFit(b, d, spec, {}) for b, d in bands.items()}

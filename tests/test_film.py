@@ -71,3 +71,20 @@ def test_bad_film_input(spec):
         fit_film(spec, "IR", 150.0, np.ones(9))
     with pytest.raises(TableError, match="band 'UV'"):
         fit_film(spec, "UV", 150.0, np.ones(10))
+
+
+def test_film_cli(tmp_path, capsys):
+    from bayescal.cli import main
+
+    example = MODELS / "seed003_film_example.csv"  # simulated: gamma 1.2, D0 1.4 in every band
+    assert main(["fit", str(example), "--model", str(MODELS / "seed003_film.toml"), "--out", str(tmp_path / "f")]) == 0
+    import json
+
+    summary = json.loads((tmp_path / "f" / "film_summary.json").read_text())
+    for band in ("B", "G", "R", "IR"):
+        g = summary["bands"][band]["gamma"]
+        assert g["q2.5"] <= 1.2 <= g["q97.5"]
+    capsys.readouterr()
+    assert main(["invert", str(tmp_path / "f"), "--dn", "0.9,1.2", "--channel", "IR"]) == 0
+    assert "band IR radiance" in capsys.readouterr().out
+    assert main(["invert", str(tmp_path / "f"), "--dn", "1.0", "--channel", "UV"]) == 2
