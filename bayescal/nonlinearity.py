@@ -95,7 +95,7 @@ def simulate_curves(
     rng = np.random.default_rng(seed)
     eps = rng.standard_normal(n_pixels)  # fixed pattern: the same pixels at every step
     pixel, common = _truth_fn(model, a, p, b, c)
-    means, stds = [], []
+    means, stds, se_std = [], [], []
     for e in irradiance:
         v = pixel(e, eps)
         gain = common(v.mean())
@@ -104,15 +104,19 @@ def simulate_curves(
         img = signal + temporal * rng.standard_normal(n_pixels)
         means.append(img.mean())
         # temporal noise left after averaging is removed from the spatial variance (EMVA 1288 eq. 32)
-        stds.append(np.sqrt(max(img.var(ddof=1) - np.mean(temporal**2), 0.0)))
-    means, stds = np.array(means), np.array(stds)
+        total = img.var(ddof=1)
+        std = np.sqrt(max(total - np.mean(temporal**2), 1e-12))
+        stds.append(std)
+        # sampling sd of the std: var(s^2) = 2 sigma_total^4 / (n - 1), so sd(s) ~ sigma_total^2 / (s sqrt(2 (n - 1)))
+        se_std.append(total / (std * np.sqrt(2 * (n_pixels - 1))))
+    means, stds, se_std = np.array(means), np.array(stds), np.array(se_std)
     prnu = stds / means
     return NonlinearityCurves(
         irradiance=np.asarray(irradiance, dtype=float),
         mean_dn=means,
         mean_se=stds / np.sqrt(n_pixels) + 0.5,  # spatial sampling + a 0.5 DN level repeatability
         prnu=prnu,
-        prnu_se=prnu / np.sqrt(2 * (n_pixels - 1)) + 2e-5,
+        prnu_se=se_std / means,
         full_scale=full_scale,
     )
 

@@ -57,3 +57,28 @@ def test_temperature_column_required(seed000):
     sim = bc.simulate(spec, design, seed=62)  # no temperatures recorded
     with pytest.raises(bc.TableError, match="temperature_c"):
         bc.fit(sim.table, spec.replace(dark={"temperature": True}), "laplace")
+
+
+def test_doubling_temperature_coverage(seed000):
+    """20 simulated cameras with T_d = 7 degC: the 95 % intervals cover it at the nominal rate."""
+    spec, design = seed000
+    spec = spec.replace(dark={"temperature": True, "temperature_ref_c": 20.0})
+    truth = dataclasses.replace(
+        design.truth,
+        dark_doubling_c=7.0,
+        temperature_ref_c=20.0,
+        dark_slope={1.0: 2000.0, 2.0: 4000.0, 3.0: 6000.0, 4.0: 8000.0},
+    )
+    blocks = tuple(dataclasses.replace(b, temperature_c=(20.0,)) for b in design.illuminated)
+    dark = (Block((0.0027, 0.004, 0.008, 0.01), (1.0, 2.0, 3.0, 4.0), temperature_c=(10.0, 20.0, 30.0)),)
+    design = dataclasses.replace(design, illuminated=blocks, dark=dark, truth=truth)
+    hits = []
+    for seed in range(20):
+        sim = bc.simulate(spec, design, seed=700 + seed)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", bc.FitFailedWarning)
+            fit = bc.fit(sim.table, spec, "laplace", seed=seed)
+        lo, hi = np.quantile(fit.draws("doubling_c"), [0.025, 0.975])
+        hits.append(lo <= 7.0 <= hi)
+    print(f"\nT_d 95 % coverage over 20 cameras: {np.mean(hits):.2f}")
+    assert np.mean(hits) >= 0.8  # nominal 0.95; binomial sd 0.05

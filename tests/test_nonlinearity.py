@@ -47,3 +47,29 @@ def test_correction_linearises_the_response():
     dev = (linear - slope * E) / (slope * E)
     raw = (curves.mean_dn - slope * E) / (slope * E)
     assert np.max(np.abs(dev[2:])) < 0.002 < np.max(np.abs(raw))  # ~6 % compression removed to < 0.2 %
+
+
+def test_hit_rates_over_30_random_sensors_per_type():
+    """>= 30 sensors per type with random gain, read noise, PRNU and nonlinearity strength (4-12 % at full scale)."""
+    rng = np.random.default_rng(2026)
+    rates, baseline = {}, {}
+    for truth in ("linear", "dn_v", "v_q"):
+        hits, base = [], []
+        for k in range(30):
+            strength = rng.uniform(0.04, 0.12) / FS
+            kw = {"b": -strength} if truth == "dn_v" else {"c": strength} if truth == "v_q" else {}
+            curves = simulate_curves(
+                truth,
+                E,
+                seed=1000 + k,
+                a=rng.uniform(3000, 4400),
+                p=rng.uniform(0.005, 0.02),
+                read_noise=rng.uniform(1, 5),
+                conversion_gain=rng.uniform(0.05, 0.5),
+                **kw,
+            )
+            hits.append(compare_nonlinearity(curves)["chosen"] == truth)
+            base.append(patent_baseline(curves)["classification"] == truth)
+        rates[truth], baseline[truth] = float(np.mean(hits)), float(np.mean(base))
+    print(f"\nBayesian hit rate per type {rates}; patent procedure {baseline}")
+    assert all(r >= 0.9 for r in rates.values()), rates
