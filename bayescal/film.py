@@ -53,6 +53,10 @@ __all__ = [
     "simulate_film",
     "fit_film",
     "uncertainty_budget_film",
+    "convert_exposure",
+    "load_film_table",
+    "save_film_fits",
+    "load_film_fits",
 ]
 
 #: seed 003 Table 1 as printed: alpha, beta, tau_max, L (meter), L* (printed), mW sr^-1 cm^-2
@@ -394,3 +398,17 @@ def load_film_fits(fit_dir, spec: FilmSpec | None = None) -> dict[str, FilmFit]:
         b, k = key.split("/", 1)
         bands.setdefault(b, {})[k] = data[key]
     return {b: FilmFit(b, d, spec, {}) for b, d in bands.items()}
+
+
+def convert_exposure(radiance, t_star: float, t: float, aperture_star: float, aperture: float, aperture_power=2):
+    """Eq. 11: step radiances calibrated at ``t*``, ``D*/f*`` re-expressed for exposure ``t`` and aperture ``D/f``.
+
+    ``L_j(t, D/f) = (t* / t) ((D*/f*) / (D/f))^k L_j(t*, D*/f*)``: the same film
+    density needs the same exposure ``H ~ L t (D/f)^2``.  The scan of the paper
+    prints the aperture ratio to the first power; image irradiance goes with
+    the square of the relative aperture, so ``k = 2`` by default
+    (``aperture_power=1`` reproduces the printed form).
+    """
+    if min(t_star, t, aperture_star, aperture) <= 0:
+        raise SpecError("exposure times and relative apertures must be positive")
+    return np.asarray(radiance, dtype=float) * (t_star / t) * (aperture_star / aperture) ** aperture_power

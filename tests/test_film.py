@@ -88,3 +88,12 @@ def test_film_cli(tmp_path, capsys):
     assert main(["invert", str(tmp_path / "f"), "--dn", "0.9,1.2", "--channel", "IR"]) == 0
     assert "band IR radiance" in capsys.readouterr().out
     assert main(["invert", str(tmp_path / "f"), "--dn", "1.0", "--channel", "UV"]) == 2
+
+
+def test_exposure_conversion_eq11():
+    from bayescal.film import convert_exposure
+
+    # half the exposure time needs twice the radiance for the same density; one stop wider (x sqrt 2) half
+    assert convert_exposure(1.0, 0.01, 0.005, 0.25, 0.25) == pytest.approx(2.0)
+    assert convert_exposure(1.0, 0.01, 0.01, 0.25, 0.25 * np.sqrt(2)) == pytest.approx(0.5)
+    assert convert_exposure(1.0, 0.01, 0.01, 0.25, 0.5, aperture_power=1) == pytest.approx(0.5)  # as printed
