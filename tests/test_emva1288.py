@@ -77,9 +77,14 @@ def test_posteriors_cover_simulated_sensors():
     """40 simulated linear sensors (K 0.28 DN/e-, QE 45 %, sigma_d 11 e-): 95 % intervals cover the truth."""
     from bayescal.emva import simulate_steps
 
-    hits = {"K": [], "QE": [], "sigma_y_dark": []}
-    sigma_y_dark = np.sqrt(0.28**2 * (11**2 + 30 * 0.011 / 50) + 1 / 12)  # read + dark shot at the first step
-    truth = {"K": 0.28, "QE": 45.0, "sigma_y_dark": sigma_y_dark}
+    hits = {"K": [], "QE": [], "sigma_y_dark": [], "sigma_d": []}
+    electrons = 11**2 + 30 * 0.011 / 50  # read noise^2 + dark shot at the first (shortest) step
+    truth = {
+        "K": 0.28,
+        "QE": 45.0,
+        "sigma_y_dark": np.sqrt(0.28**2 * electrons + 1 / 12),
+        "sigma_d": np.sqrt(electrons),
+    }
     for seed in range(40):
         t = characterize(simulate_steps(seed=seed), seed=seed).table.set_index("quantity")
         for q, v in truth.items():
