@@ -141,18 +141,25 @@ def write(df: pd.DataFrame) -> None:
     (RESULTS / "speed_vs_error.md").write_text("\n".join(lines) + "\n")
     fig, ax = plt.subplots(figsize=(7, 4.5))
     markers = {"lsq": "s", "laplace": "o", "nuts": "^", "emcee": "D"}
-    for name, grp in df.groupby("scenario"):
+    for k, (name, grp) in enumerate(df.groupby("scenario", sort=False)):
+        colour = f"C{k}"
+        grp = grp.sort_values("warm_s")
+        ax.plot(grp.warm_s, abs(grp.coverage95 - 0.95), lw=0.8, alpha=0.6, color=colour, label=name)
         for r in grp.itertuples():
-            ax.scatter(r.warm_s, abs(r.coverage95 - 0.95), marker=markers[r.backend], label=f"{r.backend}")
-        ax.plot(grp.warm_s, abs(grp.coverage95 - 0.95), lw=0.5, alpha=0.5, label=name)
+            ax.scatter(r.warm_s, abs(r.coverage95 - 0.95), marker=markers[r.backend], color=colour, s=40)
+    for b, m in markers.items():
+        ax.scatter([], [], marker=m, color="0.3", label=b)
     ax.set(xscale="log", xlabel="warm wall time per fit (s)", ylabel="|95 % coverage - 0.95| of true gains")
-    handles, labels = ax.get_legend_handles_labels()
-    uniq = dict(zip(labels, handles, strict=True))
-    ax.legend(uniq.values(), uniq.keys(), fontsize=7)
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(RESULTS / "speed_vs_error.png", dpi=110)
     print("\n".join(lines))
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    if "--replot" in sys.argv:  # redraw the table and plot from the last CSV
+        write(pd.read_csv(RESULTS / "speed_vs_error.csv"))
+    else:
+        main()
