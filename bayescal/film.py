@@ -202,7 +202,10 @@ def _sampler(toe_shoulder: bool, reference_step: int, warmup: int, draws: int, c
         l_ref = numpyro.deterministic("L_ref", correction_chain(resp * current, alpha, beta, tau))  # eq. 3
         l_steps = numpyro.deterministic("L_steps", t / t[reference_step] * l_ref)  # eq. 10
         gamma = numpyro.sample("gamma", dist.Normal(1.0, 1.0))
-        d0 = numpyro.sample("D0", dist.Normal(1.0, 2.0))
+        # parametrised by the density of the reference step: the chain's scale L_ref only shifts D0, so the
+        # curve's (D_ref, gamma) and the chain inputs are a posteriori independent and mix well
+        d_ref = numpyro.sample("D_ref", dist.Normal(1.5, 2.0))
+        d0 = numpyro.deterministic("D0", d_ref - gamma * jnp.log10(l_ref))
         sd = numpyro.deterministic("density_sd", dsd)  # the densitometer's known reading precision
         if toe_shoulder:
             d_min = numpyro.sample("D_min", dist.Normal(0.2, 0.5))

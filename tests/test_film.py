@@ -29,7 +29,7 @@ def test_table1_ir_follows_eq3_visible_do_not():
 
 
 def test_coverage_on_simulated_film(spec):
-    fast = dataclasses.replace(spec, draws=400, warmup=250)
+    fast = dataclasses.replace(spec, draws=500, warmup=300, chains=4)
     hits = {"gamma": [], "D0": [], "radiance": []}
     rng = np.random.default_rng(0)
     for seed in range(40):
