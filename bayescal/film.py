@@ -127,7 +127,7 @@ class FilmSpec:
     toe_shoulder: bool = False
     draws: int = 1000
     warmup: int = 500
-    chains: int = 2
+    chains: int = 4
     stated_uncertainty: dict = field(default_factory=lambda: {"B": 0.15, "G": 0.15, "R": 0.15, "IR": 0.20})
 
     def band(self, name: str) -> FilmBand:
