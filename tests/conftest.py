@@ -1,3 +1,4 @@
+import os
 from pathlib import Path
 
 import pytest
@@ -5,7 +6,8 @@ import pytest
 import bayescal as bc
 
 ROOT = Path(__file__).resolve().parent.parent
-SHARED = ROOT.parent / "shared" / "data"
+#: the project's reference data (real CCD, NIST StRD) live beside the checkout; BAYESCAL_SHARED_DATA overrides
+SHARED = Path(os.environ.get("BAYESCAL_SHARED_DATA", ROOT.parent / "shared" / "data"))
 MODELS = ROOT / "models"
 
 
