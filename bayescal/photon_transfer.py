@@ -113,26 +113,34 @@ def standard_method(steps: Steps) -> tuple[dict, dict]:
     k = _through_origin(x_sig[s], (c["s2_y"] - c["s2_dark"]).to_numpy()[s])
     resp = _through_origin(c["photons"].to_numpy()[s], x_sig[s])
     s2_dark0 = float(c["s2_dark"].iloc[0])
-    sigma_y_dark = np.sqrt(s2_dark0)
     t = c["texp_s"].to_numpy()
     i_mean_dn = np.polyfit(t, c["mu_dark"].to_numpy(), 1)[0]
     i_var_dn2 = np.polyfit(t, c["s2_dark"].to_numpy(), 1)[0]
-    qe = resp / k
     u_p_sat = float(c["photons"].iloc[r["index_u_ysat"]])
-    u_e_min = sigma_y_dark / k + 0.5
-    u_p_min = u_e_min / qe
     # relative deviations: the line minimises sum(((y - fit) / y)^2) (np.polyfit's w multiplies residuals)
     xl, yl = c["photons"].to_numpy()[_lin(r)], x_sig[_lin(r)]
     le_min, le_max = _linearity(c, r, *np.polyfit(xl, yl, 1, w=1.0 / yl))
-    point = {
+    point = _quantities(k, resp, s2_dark0, i_mean_dn / k, i_var_dn2 / k**2, u_p_sat, le_min, le_max)
+    if steps.stack:
+        point.update(_nonuniformity(steps.stack, k, *_spatial(steps.stack)))
+    return point, r
+
+
+def _quantities(k, resp, s2_dark, i_mean, i_var, u_p_sat, le_min, le_max) -> dict:
+    """The EMVA 1288 quantities from K, R, the dark variance and the dark currents (scalars or draws alike)."""
+    qe = resp / k
+    sigma_y_dark = np.sqrt(s2_dark)
+    u_p_min = (sigma_y_dark / k + 0.5) / qe  # the absolute sensitivity threshold
+    return {
         "K": k,
         "R": resp,
         "QE": 100 * qe,
         "sigma_y_dark": sigma_y_dark,
-        "sigma_d": np.sqrt(max(s2_dark0 - QUANT, 0.0)) / k,
-        "dark_current_mean": i_mean_dn / k,
-        "dark_current_var": i_var_dn2 / k**2,
-        "u_p_sat": u_p_sat,
+        "sigma_d": np.sqrt(np.maximum(s2_dark - QUANT, 0.0)) / k,
+        "dark_current_mean": i_mean,
+        "dark_current_var": i_var,
+        "dark_current_difference": i_mean - i_var,
+        "u_p_sat": np.full(np.shape(k), u_p_sat),  # a point value: the saturation step is discrete
         "u_e_sat": qe * u_p_sat,
         "u_p_min": u_p_min,
         "DR": u_p_sat / u_p_min,
@@ -140,8 +148,6 @@ def standard_method(steps: Steps) -> tuple[dict, dict]:
         "LE_min": le_min,
         "LE_max": le_max,
     }
-    point.update(_nonuniformity(steps, k))
-    return point, r
 
 
 def _spatial(stack: dict) -> tuple[float, float]:
@@ -152,12 +158,8 @@ def _spatial(stack: dict) -> tuple[float, float]:
     return bright, dark
 
 
-def _nonuniformity(steps: Steps, k) -> dict:
-    """DSNU1288 (e-) and PRNU1288 (%) from the stacks (EMVA 1288 release 3.0 section 8), if present."""
-    if not steps.stack:
-        return {}
-    st = steps.stack
-    s2_bright, s2_dark = _spatial(st)
+def _nonuniformity(st: dict, k, s2_bright, s2_dark) -> dict:
+    """DSNU1288 (e-) and PRNU1288 (%) from the stacks' spatial variances (EMVA 1288 release 3.0 section 8)."""
     return {
         "DSNU1288": np.sqrt(np.maximum(s2_dark, 0.0)) / k,
         "PRNU1288": 100 * np.sqrt(np.maximum(s2_bright - s2_dark, 0.0)) / (st["mean_bright"] - st["mean_dark"]),
@@ -243,49 +245,24 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
         c["photons"].to_numpy()[s], sig[s], 1.0 / np.maximum(sig[s], 1e-9) ** 2, n_draws, rng, origin=True
     )
     resp = resp[:, 0]
-    qe = resp / k
     n_pix = c["n_pixels"].iloc[0]
     if not np.isfinite(n_pix):
         n_pix = 640 * 480  # reduced tables carry no pixel count: assume the full VGA frame of the data set
     s2_d0 = float(c["s2_dark"].iloc[0])
     s2_dark = (n_pix - 1) * s2_d0 / rng.chisquare(n_pix - 1, n_draws)
-    sigma_y_dark = np.sqrt(s2_dark)
     t = c["texp_s"].to_numpy()
     i_mean = _line_posterior(t, c["mu_dark"].to_numpy(), np.ones_like(t), n_draws, rng)[:, 0] / k
     i_var = _line_posterior(t, c["s2_dark"].to_numpy(), np.ones_like(t), n_draws, rng)[:, 0] / k**2
-    u_p_sat = point["u_p_sat"]
-    u_e_min = sigma_y_dark / k + 0.5
-    u_p_min = u_e_min / qe
     lin = _line_posterior(c["photons"].to_numpy()[_lin(r)], sig[_lin(r)], 1.0 / sig[_lin(r)] ** 2, n_draws, rng)
     le_min, le_max = _linearity_at_extremes(c, r, point, lin[:, 0], lin[:, 1])
-    draws = {
-        "K": k,
-        "R": resp,
-        "QE": 100 * qe,
-        "sigma_y_dark": sigma_y_dark,
-        "sigma_d": np.sqrt(np.maximum(s2_dark - QUANT, 0.0)) / k,
-        "dark_current_mean": i_mean,
-        "dark_current_var": i_var,
-        "u_p_sat": np.full(n_draws, u_p_sat),
-        "u_e_sat": qe * u_p_sat,
-        "u_p_min": u_p_min,
-        "DR": u_p_sat / u_p_min,
-        "SNR_max": np.sqrt(qe * u_p_sat),
-        "LE_min": le_min,
-        "LE_max": le_max,
-    }
+    draws = _quantities(k, resp, s2_dark, i_mean, i_var, point["u_p_sat"], le_min, le_max)
     if steps.stack:
         # a spatial variance over N pixels has N - 1 degrees of freedom (Jeffreys posterior)
-        st = steps.stack
-        s2_bright, s2_dark = _spatial(st)
-        scale = lambda v: (n_pix - 1) * v / rng.chisquare(n_pix - 1, n_draws)  # noqa: E731
-        sb, sd = scale(max(s2_bright, 0.0)), scale(max(s2_dark, 0.0))
-        draws["DSNU1288"] = np.sqrt(sd) / k
-        draws["PRNU1288"] = 100 * np.sqrt(np.maximum(sb - sd, 0.0)) / (st["mean_bright"] - st["mean_dark"])
-    diff = i_mean - i_var
-    lo, hi = np.quantile(diff, [0.025, 0.975])
+        s2_bright, s2_dark_sp = _spatial(steps.stack)
+        scale = lambda v: (n_pix - 1) * max(v, 0.0) / rng.chisquare(n_pix - 1, n_draws)  # noqa: E731
+        draws.update(_nonuniformity(steps.stack, k, scale(s2_bright), scale(s2_dark_sp)))
+    lo, hi = np.quantile(draws["dark_current_difference"], [0.025, 0.975])
     compatible = bool(lo <= 0.0 <= hi)
-    draws["dark_current_difference"] = diff
     units = {
         "K": "DN/e-",
         "R": "DN/photon",
@@ -312,12 +289,7 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
             {
                 "quantity": name,
                 "unit": units[name],
-                "standard": point.get(
-                    name,
-                    point["dark_current_mean"] - point["dark_current_var"]
-                    if name == "dark_current_difference"
-                    else np.nan,
-                ),
+                "standard": float(point.get(name, np.nan)),
                 "median": q[1],
                 "q2.5": q[0],
                 "q97.5": q[2],
