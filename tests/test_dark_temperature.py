@@ -11,11 +11,9 @@ import bayescal as bc
 from bayescal.design import Block
 
 
-@pytest.fixture(scope="module")
-def thermal(seed000):
-    spec, design = seed000
+def thermal_camera(spec, design):
+    """Seed 000 with a dark current doubling every 7 degC and dark frames at 10, 20 and 30 degC."""
     spec = spec.replace(dark={"temperature": True, "temperature_ref_c": 20.0})
-    temps = (10.0, 20.0, 30.0)
     truth = dataclasses.replace(
         design.truth,
         dark_doubling_c=7.0,
@@ -23,8 +21,13 @@ def thermal(seed000):
         dark_slope={1.0: 2000.0, 2.0: 4000.0, 3.0: 6000.0, 4.0: 8000.0},
     )
     blocks = tuple(dataclasses.replace(b, temperature_c=(20.0,)) for b in design.illuminated)
-    dark = (Block((0.0027, 0.004, 0.008, 0.01), (1.0, 2.0, 3.0, 4.0), temperature_c=temps),)
-    design = dataclasses.replace(design, illuminated=blocks, dark=dark, truth=truth)
+    dark = (Block((0.0027, 0.004, 0.008, 0.01), (1.0, 2.0, 3.0, 4.0), temperature_c=(10.0, 20.0, 30.0)),)
+    return spec, dataclasses.replace(design, illuminated=blocks, dark=dark, truth=truth)
+
+
+@pytest.fixture(scope="module")
+def thermal(seed000):
+    spec, design = thermal_camera(*seed000)
     sim = bc.simulate(spec, design, seed=61)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", bc.FitFailedWarning)
@@ -61,17 +64,7 @@ def test_temperature_column_required(seed000):
 
 def test_doubling_temperature_coverage(seed000):
     """20 simulated cameras with T_d = 7 degC: the 95 % intervals cover it at the nominal rate."""
-    spec, design = seed000
-    spec = spec.replace(dark={"temperature": True, "temperature_ref_c": 20.0})
-    truth = dataclasses.replace(
-        design.truth,
-        dark_doubling_c=7.0,
-        temperature_ref_c=20.0,
-        dark_slope={1.0: 2000.0, 2.0: 4000.0, 3.0: 6000.0, 4.0: 8000.0},
-    )
-    blocks = tuple(dataclasses.replace(b, temperature_c=(20.0,)) for b in design.illuminated)
-    dark = (Block((0.0027, 0.004, 0.008, 0.01), (1.0, 2.0, 3.0, 4.0), temperature_c=(10.0, 20.0, 30.0)),)
-    design = dataclasses.replace(design, illuminated=blocks, dark=dark, truth=truth)
+    spec, design = thermal_camera(*seed000)
     hits = []
     for seed in range(20):
         sim = bc.simulate(spec, design, seed=700 + seed)
