@@ -176,7 +176,7 @@ def _cmd_invert(args) -> int:
         fits = load_film_fits(args.posterior)
         if args.channel not in fits or args.dn is None:
             raise SpecError(f"a film fit inverts --dn densities of one --channel band ({', '.join(fits)})")
-        table = fits[args.channel].invert(np.asarray(args.dn))
+        table = fits[args.channel].invert(np.asarray(args.dn), seed=args.seed)
         print(f"band {args.channel} radiance (mW sr^-1 cm^-2) from film density; 95 % intervals:")
         print(table.to_string(index=False, float_format="%.5g"))
         if args.out:

@@ -236,7 +236,7 @@ class FilmFit:
     spec: FilmSpec
     diagnostics: dict
 
-    def invert(self, density, level: float = 0.95, include_noise: bool = True) -> pd.DataFrame:
+    def invert(self, density, level: float = 0.95, include_noise: bool = True, seed: int = 0) -> pd.DataFrame:
         """Band radiance (mW sr^-1 cm^-2) of target densities: median and ``level`` interval per value.
 
         Vectorised over any array of densities (a scanned density image is
@@ -245,7 +245,7 @@ class FilmFit:
         """
         d = np.atleast_1d(np.asarray(density, dtype=float))
         gamma, d0 = self.draws["gamma"][:, None], self.draws["D0"][:, None]
-        rng = np.random.default_rng(0)
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 0xF11]))  # the density noise draws
         sd = np.broadcast_to(np.asarray(self.draws["density_sd"], dtype=float).reshape(-1, 1), gamma.shape)
         noise = sd * rng.standard_normal(gamma.shape) if include_noise else 0.0
         lg = (d[None, :] - noise - d0) / gamma
