@@ -49,8 +49,6 @@ class Program:
         Flat vector -> dict of unconstrained sites.
     potential : callable
         ``potential(z, data)``: negative log posterior density (with Jacobians).
-    potential_batch : callable
-        ``potential_batch(z_batch, data)``: the same for a batch of flat vectors.
     value_and_grad, hessian : callable
         Its value and gradient, and Hessian, in ``z``.
     constrain : callable
@@ -68,7 +66,6 @@ class Program:
     z0: jax.Array
     unravel: Callable
     potential: Callable
-    potential_batch: Callable
     value_and_grad: Callable
     hessian: Callable
     constrain: Callable
@@ -87,11 +84,6 @@ class Program:
             return None
         marked = {k: (jnp.ones_like(v) if k == name else jnp.zeros_like(v)) for k, v in sites.items()}
         return int(jnp.argmax(ravel_pytree(marked)[0]))
-
-    @property
-    def sites(self) -> tuple[str, ...]:
-        """Names of the latent sites, in flat-vector order."""
-        return tuple(self.unravel(self.z0))
 
 
 def program_for(model: CalibrationModel) -> Program:
@@ -145,7 +137,6 @@ def _build(parts: Parts, example: ModelData) -> Program:
         z0=z0,
         unravel=unravel,
         potential=jax.jit(potential),
-        potential_batch=jax.jit(jax.vmap(potential, in_axes=(0, None))),
         value_and_grad=jax.jit(jax.value_and_grad(potential)),
         hessian=jax.jit(jax.hessian(potential)),
         constrain=jax.jit(jax.vmap(constrain_one, in_axes=(0, None))),
