@@ -95,6 +95,19 @@ def _parser() -> argparse.ArgumentParser:
     se.add_argument("--backend", default="laplace", choices=["nuts", "laplace", "emcee"])
     se.add_argument("--seed", type=int, default=0)
     se.set_defaults(func=_cmd_select)
+    sc = sub.add_parser("scene", help="cheapest calibration whose inversion of an image matches the full model's")
+    sc.add_argument("image", help="TIFF, PNG or NPY image (the scene)")
+    sc.add_argument("posteriors", nargs="+", help="fit directories (or posterior.nc) of the candidate models")
+    _setting_args(sc, required=False)
+    sc.add_argument("--cfa", help="Bayer pattern of a raw mosaic: RGGB, BGGR, GRBG, GBRG")
+    sc.add_argument("--channel", help="channel of a single-channel image")
+    sc.add_argument("--channels", help="comma list naming the planes of an (H, W, C) image")
+    sc.add_argument("--full", help="the reference candidate (default: the highest response order)")
+    sc.add_argument("--tol", type=float, default=0.1, help="allowed deviation in posterior sds (default 0.1)")
+    sc.add_argument("--n-avg", type=float, default=1.0, help="pixels x frames averaged per value (default 1)")
+    sc.add_argument("--out", help="write the comparison as JSON here")
+    sc.add_argument("--seed", type=int, default=0)
+    sc.set_defaults(func=_cmd_scene)
     s = sub.add_parser("simulate", help="simulate a measurement table from a design with a [truth] table")
     s.add_argument("--design", required=True, help="design TOML (names its spec, holds [truth])")
     s.add_argument("--model", help="model spec (default: the design's)")
@@ -299,6 +312,33 @@ def _cmd_select(args) -> int:
     if len(ft):
         print("\nleast-squares F-test per channel at the reference setting (baseline):")
         print(ft.to_string(index=False, float_format="%.4g"))
+    return 0
+
+
+def _cmd_scene(args) -> int:
+    from .calibration import Calibration
+    from .images import read_image
+    from .io import write_json_atomic
+    from .scene import choose_for_scene
+
+    cals = {str(p): Calibration.load(p) for p in args.posteriors}
+    full = args.full or max(cals, key=lambda n: cals[n].coef.shape[-1])
+    setting = _setting(args, cals[full])
+    choice = choose_for_scene(
+        cals,
+        read_image(args.image),
+        setting,
+        full=full,
+        tol=args.tol,
+        cfa=args.cfa,
+        channel=args.channel,
+        channels=args.channels.split(",") if args.channels else None,
+        n_avg=args.n_avg,
+        seed=args.seed,
+    )
+    print(choice)
+    if args.out:
+        write_json_atomic(args.out, choice.to_dict())
     return 0
 
 

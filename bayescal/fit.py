@@ -244,24 +244,10 @@ def fit(
     t2 = time.perf_counter()
     divergences, stats = 0, {}
     if backend == "laplace":
-        scale = program.site_index("excess")
-        if scale is not None and spec.inference.laplace_integrate:
-            z, info = integrated_draws(program, model.data, result, scale, spec.inference.laplace_draws, seed)
-            z = z[None]
-            extra["integrated_scale_edge_weight"] = info["edge_weight"]
-        else:
-            z = laplace_draws(result, spec.inference.laplace_draws, seed)[None]
-        if model.parts.response.spec.pooled or model.parts.dark.spec.pooled:
-            extra["warning"] = "pooling scales make the Laplace approximation unreliable; use nuts"
+        z = _laplace_z(model, program, result, seed, extra)
     elif backend == "nuts":
         out = run_nuts(program, model.data, result.mode, result.cov, spec.inference, seed, progress)
-        z, divergences = out.z, int(out.diverging.sum())
-        stats = {
-            "diverging": out.diverging,
-            "tree_steps": out.num_steps,
-            "accept_prob": out.accept_prob,
-            "energy": out.energy,
-        }
+        z, divergences, stats = out.z, int(out.diverging.sum()), _nuts_stats(out)
     else:
         out = run_emcee(program, model.data, result.mode, result.cov, spec.inference, seed, progress)
         z = out.z
@@ -269,6 +255,35 @@ def fit(
             acceptance_fraction=out.acceptance, max_autocorr_steps=out.autocorr_steps, n_eff=out.n_eff, thin=out.thin
         )
     timings[backend] = time.perf_counter() - t2
+    return _finish(model, program, z, backend, seed, divergences, stats, extra, result, lsq, timings, strict)
+
+
+def _laplace_z(model: CalibrationModel, program, result, seed: int, extra: dict) -> np.ndarray:
+    """Laplace draws ``(1, n, dim)``, the excess-scatter scale integrated numerically when present."""
+    settings = model.spec.inference
+    scale = program.site_index("excess")
+    if scale is not None and settings.laplace_integrate and result.positive_definite:
+        z, info = integrated_draws(program, model.data, result, scale, settings.laplace_draws, seed)
+        extra["integrated_scale_edge_weight"] = info["edge_weight"]
+    else:
+        z = laplace_draws(result, settings.laplace_draws, seed)
+    if model.parts.response.spec.pooled or model.parts.dark.spec.pooled:
+        extra["warning"] = "pooling scales make the Laplace approximation unreliable; use nuts"
+    return z[None]
+
+
+def _nuts_stats(out) -> dict:
+    return {
+        "diverging": out.diverging,
+        "tree_steps": out.num_steps,
+        "accept_prob": out.accept_prob,
+        "energy": out.energy,
+    }
+
+
+def _finish(model, program, z, backend, seed, divergences, stats, extra, result, lsq, timings, strict) -> Fit:
+    """From unconstrained draws ``(chain, draw, dim)`` to a diagnosed :class:`Fit`."""
+    spec, table = model.spec, model.table
     post, rows = _posterior(model, program, z, seed)
     diag = _diagnose(backend, post, divergences, spec, extra, result)
     diag = _check_outliers(model, rows, diag)

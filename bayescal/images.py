@@ -21,7 +21,7 @@ from .errors import SpecError, TableError
 from .invert import BOUND_NAMES, inversion_lut, invert
 from .io import staged_directory
 
-__all__ = ["read_image", "channel_map", "invert_image", "write_radiance_maps", "CFA_PATTERNS"]
+__all__ = ["read_image", "channel_map", "channel_views", "invert_image", "write_radiance_maps", "CFA_PATTERNS"]
 
 CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 
@@ -82,19 +82,7 @@ def invert_image(
     says which channel each pixel belongs to.
     """
     image = np.asarray(image)
-    given = sum(v is not None for v in (cfa, channel, channels))
-    if given != 1:
-        raise SpecError("say how pixels map to channels: give exactly one of cfa=, channel= or channels=")
-    if image.ndim == 3:
-        if channels is None or len(channels) != image.shape[2]:
-            raise SpecError(f"a {image.shape} stack needs channels= with {image.shape[2]} names")
-        views = [((Ellipsis, i), name) for i, name in enumerate(channels)]
-    elif channels is not None:
-        raise SpecError("channels= is for (H, W, C) stacks; use cfa= or channel= for a 2-D image")
-    elif cfa is not None:
-        views = [((slice(dy, None, 2), slice(dx, None, 2)), name) for (dy, dx), name in _cfa_cells(cfa).items()]
-    else:
-        views = [((Ellipsis,), channel)]
+    views = channel_views(image, cfa=cfa, channel=channel, channels=channels)
     if prnu is None:
         prnu = cal.prnu if n_avg == 1 else 0.0
     shape = image.shape
@@ -154,6 +142,28 @@ def invert_image(
         n_extrapolated=int(np.sum(extrap)),
     )
     return ds
+
+
+def channel_views(
+    image: np.ndarray, *, cfa: str | None = None, channel: str | None = None, channels: list[str] | None = None
+) -> list[tuple[tuple, str]]:
+    """``[(index, channel name)]``: the strided view of each channel's pixels (``image[index]``).
+
+    Exactly one of ``cfa`` (2-D Bayer mosaic), ``channel`` (2-D single
+    channel) or ``channels`` (3-D ``(H, W, C)`` stack) must be given.
+    """
+    given = sum(v is not None for v in (cfa, channel, channels))
+    if given != 1:
+        raise SpecError("say how pixels map to channels: give exactly one of cfa=, channel= or channels=")
+    if image.ndim == 3:
+        if channels is None or len(channels) != image.shape[2]:
+            raise SpecError(f"a {image.shape} stack needs channels= with {image.shape[2]} names")
+        return [((Ellipsis, i), name) for i, name in enumerate(channels)]
+    if channels is not None:
+        raise SpecError("channels= is for (H, W, C) stacks; use cfa= or channel= for a 2-D image")
+    if cfa is not None:
+        return [((slice(dy, None, 2), slice(dx, None, 2)), name) for (dy, dx), name in _cfa_cells(cfa).items()]
+    return [((Ellipsis,), channel)]
 
 
 def _cfa_cells(cfa: str) -> dict[tuple[int, int], str]:

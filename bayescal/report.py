@@ -303,7 +303,8 @@ def _html_table(df: pd.DataFrame) -> str:
     return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def _md_table(df: pd.DataFrame) -> str:
+def markdown_table(df: pd.DataFrame) -> str:
+    """A DataFrame as a Markdown table (numbers to 5 significant digits)."""
     head, rows = _table_rows(df)
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -321,23 +322,23 @@ def _markdown(data, coef, lsq_ref, budget, examples) -> str:
         "",
         f"## Coefficients at the reference setting (DN = A0 + A1 L + ..., L in {data['stimulus_unit']})",
         "",
-        _md_table(coef),
+        markdown_table(coef),
         "",
         "## Least squares at the reference setting",
         "",
-        _md_table(lsq_ref),
+        markdown_table(lsq_ref),
         "",
         "## Uncertainty budget of inverted radiance (one pixel, reference setting)",
         "",
-        _md_table(budget),
+        markdown_table(budget),
         "",
         "## Derived setting (2.5 x reference exposure)",
         "",
-        _md_table(examples["predict"].drop(columns=["why"])),
+        markdown_table(examples["predict"].drop(columns=["why"])),
         "",
         "## Inversion examples",
         "",
-        _md_table(examples["invert"]),
+        markdown_table(examples["invert"]),
         "",
     ]
     return "\n".join(parts)

@@ -57,11 +57,23 @@ class ResponseSpec:
     nonlinearity across channels (it is a property of the sense node and ADC,
     shared by all colours); ``gain_prior = "pooled"`` also pools the
     per-channel log gains.
+
+    Priors, in the model's scaled units (DESIGN.md section 5): the gain ``G``
+    is the linear signal at the brightest stimulus of the table as a
+    fraction of full scale, log-normal with median ``gain_prior_median``
+    and log-sd ``gain_prior_log_sd`` (``"normal"``: Normal(median,
+    10 median), nearly flat); each nonlinearity coefficient is
+    Normal(0, ``nonlinearity_prior_sd``).  The defaults are weakly
+    informative; a lab that knows its camera class can say so (the SBC runs
+    do, see :mod:`bayescal.sbc`).
     """
 
     order: int = 1
     pooled: bool = True
     gain_prior: Literal["lognormal", "normal", "pooled"] = "lognormal"
+    gain_prior_median: float = 0.5
+    gain_prior_log_sd: float = 2.0
+    nonlinearity_prior_sd: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -77,6 +89,10 @@ class DarkSpec:
     ``T_d`` degC, ``slope(T) = slope(T_ref) 2^((T - T_ref) / T_d)`` (seed 002:
     about 7 degC), with ``T_d`` log-normal around ``doubling_c`` (relative sd
     ``doubling_rel_sd``); the table needs a ``temperature_c`` column.
+
+    Priors (fractions of full scale): each offset Normal(``offset_prior_mean``,
+    ``offset_prior_sd``), each dark slope (per longest exposure of the table)
+    Normal(0, ``slope_prior_sd``).
     """
 
     gain_dependence: Literal["per_setting", "proportional"] = "per_setting"
@@ -86,6 +102,9 @@ class DarkSpec:
     temperature_ref_c: float = 20.0
     doubling_c: float = 7.0
     doubling_rel_sd: float = 0.4
+    offset_prior_mean: float = 0.05
+    offset_prior_sd: float = 0.25
+    slope_prior_sd: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -316,6 +335,11 @@ def _check_spec(spec: ModelSpec) -> None:
         (not spec.dark.temperature or spec.dark.exposure_slope, "dark.temperature needs dark.exposure_slope = true"),
         (spec.dark.doubling_c > 0 and spec.dark.doubling_rel_sd > 0, "dark.doubling_c and doubling_rel_sd must be > 0"),
         (spec.saturation.prnu >= 0, "saturation.prnu must be >= 0"),
+        (spec.response.gain_prior_median > 0, "response.gain_prior_median must be > 0"),
+        (spec.response.gain_prior_log_sd > 0, "response.gain_prior_log_sd must be > 0"),
+        (spec.response.nonlinearity_prior_sd > 0, "response.nonlinearity_prior_sd must be > 0"),
+        (spec.dark.offset_prior_sd > 0, "dark.offset_prior_sd must be > 0"),
+        (spec.dark.slope_prior_sd > 0, "dark.slope_prior_sd must be > 0"),
         (spec.inference.chains >= 1 and spec.inference.draws >= 10, "inference needs chains >= 1 and draws >= 10"),
         (0 < spec.inference.target_accept < 1, "inference.target_accept must be in (0, 1)"),
     ]

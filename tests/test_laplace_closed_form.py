@@ -3,8 +3,7 @@
 import numpy as np
 
 import bayescal as bc
-from bayescal.components.dark import OFFSET_PRIOR, SLOPE_PRIOR_SD
-from bayescal.components.response import GAIN_PRIOR
+from bayescal.components.response import NORMAL_GAIN_SD_FACTOR
 from bayescal.inference.laplace import laplace
 from bayescal.inference.program import program_for
 from bayescal.inference.start import initial_point
@@ -13,8 +12,8 @@ from bayescal.inference.start import initial_point
 def test_linear_gaussian_posterior(seed000):
     spec, design = seed000
     spec = spec.replace(
-        response={"order": 1, "gain_prior": "normal", "pooled": False},
-        dark={"pooled": False},
+        response={"order": 1, "gain_prior": "normal", "pooled": False, "gain_prior_median": 0.8},
+        dark={"pooled": False, "offset_prior_mean": 0.02, "offset_prior_sd": 0.01, "slope_prior_sd": 0.003},
         noise={"kind": "measured", "excess_dn": 0.0},
         sphere={"per_level_rel": 0.0},
         saturation={"censor": False},
@@ -33,10 +32,10 @@ def test_linear_gaussian_posterior(seed000):
     x_b1 = np.zeros((n, g))
     x_b1[np.arange(n), d["gset"]] = d["t"]
     x = np.hstack([x_gain, x_b0, x_b1])
-    prior_mean = np.r_[np.full(c, GAIN_PRIOR[0]), np.full(c * g, OFFSET_PRIOR[0]), np.zeros(g)]
-    prior_var = np.r_[
-        np.full(c, GAIN_PRIOR[1] ** 2), np.full(c * g, OFFSET_PRIOR[1] ** 2), np.full(g, SLOPE_PRIOR_SD**2)
-    ]
+    r, dk = spec.response, spec.dark  # priors as the spec states them (informative here, so they matter)
+    gain_sd = NORMAL_GAIN_SD_FACTOR * r.gain_prior_median
+    prior_mean = np.r_[np.full(c, r.gain_prior_median), np.full(c * g, dk.offset_prior_mean), np.zeros(g)]
+    prior_var = np.r_[np.full(c, gain_sd**2), np.full(c * g, dk.offset_prior_sd**2), np.full(g, dk.slope_prior_sd**2)]
     w = d["n_avg"] / d["var_meas"]
     precision = x.T @ (w[:, None] * x) + np.diag(1 / prior_var)
     cov = np.linalg.inv(precision)

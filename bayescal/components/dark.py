@@ -20,9 +20,7 @@ from .priors import scale_prior
 
 __all__ = ["Dark"]
 
-OFFSET_PRIOR = (0.05, 0.25)  # fraction of full scale
 OFFSET_TAU_SD = 0.01
-SLOPE_PRIOR_SD = 0.05  # fraction of full scale per longest exposure
 
 
 @dataclass(frozen=True)
@@ -42,17 +40,21 @@ class Dark:
         """Sample the offset parameters and return the per-row scaled offset."""
         c, g = self.n_channels, 1 if self.proportional else self.n_gains
         if self.spec.pooled and c > 1:
-            mu = numpyro.sample("b0_mu", dist.Normal(*OFFSET_PRIOR).expand([g]).to_event(1))
+            mu = numpyro.sample(
+                "b0_mu", dist.Normal(self.spec.offset_prior_mean, self.spec.offset_prior_sd).expand([g]).to_event(1)
+            )
             tau = numpyro.sample("b0_tau", scale_prior(OFFSET_TAU_SD))
             b0 = numpyro.sample("b0", dist.Normal(mu, tau).expand([c, g]).to_event(2))
         else:
-            b0 = numpyro.sample("b0", dist.Normal(*OFFSET_PRIOR).expand([c, g]).to_event(2))
+            b0 = numpyro.sample(
+                "b0", dist.Normal(self.spec.offset_prior_mean, self.spec.offset_prior_sd).expand([c, g]).to_event(2)
+            )
         if self.proportional:
             offset = b0[data.channel, 0] * data.g_rel
         else:
             offset = b0[data.channel, data.gset]
         if self.spec.exposure_slope:
-            b1 = numpyro.sample("b1", dist.Normal(0.0, SLOPE_PRIOR_SD).expand([g]).to_event(1))
+            b1 = numpyro.sample("b1", dist.Normal(0.0, self.spec.slope_prior_sd).expand([g]).to_event(1))
             slope = b1[0] * data.g_rel if self.proportional else b1[data.gset]
             if self.spec.temperature:  # dark current doubles every T_d degC (seed 002)
                 t_d = numpyro.sample("T_d", dist.LogNormal(jnp.log(self.spec.doubling_c), self.spec.doubling_rel_sd))

@@ -22,11 +22,10 @@ from .priors import scale_prior
 
 __all__ = ["Response"]
 
-#: priors in scaled units (signal as a fraction of full scale at the brightest stimulus)
-GAIN_PRIOR = (0.5, 5.0)  # "normal": linear-Gaussian when the response is linear
-LOG_GAIN_PRIOR = (float(np.log(0.5)), 2.0)  # "lognormal" (default): gains are positive
-ETA_PRIOR_SD = 0.1
+#: prior scale of the pooled nonlinearity's spread across channels
 ETA_TAU_SD = 0.02
+#: the "normal" gain prior's sd, in units of its median: nearly flat (linear-Gaussian when the response is linear)
+NORMAL_GAIN_SD_FACTOR = 10.0
 
 
 @dataclass(frozen=True)
@@ -45,23 +44,25 @@ class Response:
         """Sample gains ``G`` (C,) and nonlinearity ``eta`` (C, order-1) or None."""
         c = self.n_channels
         if self.spec.gain_prior == "lognormal":
-            gain = numpyro.sample("G", dist.LogNormal(*LOG_GAIN_PRIOR).expand([c]).to_event(1))
+            log_median = float(np.log(self.spec.gain_prior_median))
+            gain = numpyro.sample("G", dist.LogNormal(log_median, self.spec.gain_prior_log_sd).expand([c]).to_event(1))
         elif self.spec.gain_prior == "pooled":
             mu = numpyro.sample("logG_mu", dist.Normal(0.0, 2.0))
             tau = numpyro.sample("logG_tau", scale_prior(1.0))
             z = numpyro.sample("logG_z", dist.Normal(0.0, 1.0).expand([c]).to_event(1))
             gain = numpyro.deterministic("G", jnp.exp(mu + tau * z))
         else:
-            gain = numpyro.sample("G", dist.Normal(*GAIN_PRIOR).expand([c]).to_event(1))
+            median = self.spec.gain_prior_median
+            gain = numpyro.sample("G", dist.Normal(median, NORMAL_GAIN_SD_FACTOR * median).expand([c]).to_event(1))
         if self.n_terms == 0:
             return gain, None
         k = self.n_terms
         if self.spec.pooled and c > 1:
-            mu = numpyro.sample("eta_mu", dist.Normal(0.0, ETA_PRIOR_SD).expand([k]).to_event(1))
+            mu = numpyro.sample("eta_mu", dist.Normal(0.0, self.spec.nonlinearity_prior_sd).expand([k]).to_event(1))
             tau = numpyro.sample("eta_tau", scale_prior(ETA_TAU_SD).expand([k]).to_event(1))
             eta = numpyro.sample("eta", dist.Normal(mu, tau).expand([c, k]).to_event(2))
         else:
-            eta = numpyro.sample("eta", dist.Normal(0.0, ETA_PRIOR_SD).expand([c, k]).to_event(2))
+            eta = numpyro.sample("eta", dist.Normal(0.0, self.spec.nonlinearity_prior_sd).expand([c, k]).to_event(2))
         return gain, eta
 
     def signal(self, gain: jnp.ndarray, eta: jnp.ndarray | None, u: jnp.ndarray, channel: jnp.ndarray) -> jnp.ndarray:

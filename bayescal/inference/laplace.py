@@ -9,6 +9,7 @@ this *is* the posterior (DESIGN.md section 4).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import jax
 import jax.numpy as jnp
@@ -18,7 +19,15 @@ import optimistix as optx
 from ..data import ModelData
 from .program import Program
 
-__all__ = ["LaplaceResult", "find_map", "laplace", "laplace_draws", "integrated_draws"]
+__all__ = [
+    "LaplaceResult",
+    "find_map",
+    "laplace",
+    "laplace_many",
+    "laplace_draws",
+    "integrated_draws",
+    "covariance_factor",
+]
 
 
 @dataclass(frozen=True)
@@ -82,10 +91,80 @@ def _make_whitened_bfgs():
 _WHITENED_BFGS = _make_whitened_bfgs()
 
 
+@lru_cache(maxsize=16)
+def _batched_map(program: Program, rounds: int):
+    """Jitted, vmapped MAP search: ``(z0 (B, d), data (B, ...)) -> (z, hessian, newton_step^2, steps)``."""
+    solver = optx.BFGS(rtol=1e-12, atol=1e-12)
+
+    def whitened(w, args):
+        z_c, precond, data = args
+        return program.potential(z_c + precond @ w, data)
+
+    def precondition(hess):
+        hess = 0.5 * (hess + hess.T)
+        w, v = jnp.linalg.eigh(jnp.where(jnp.isfinite(hess), hess, 0.0))
+        w = jnp.maximum(jnp.abs(w), 1e-10 * jnp.maximum(jnp.abs(w).max(), 1.0))
+        return jnp.where(jnp.all(jnp.isfinite(hess)), v / jnp.sqrt(w), jnp.eye(hess.shape[0]))
+
+    def newton_decrement(z, data):
+        hess = program.hessian(z, data)
+        step = precondition(hess).T @ program.value_and_grad(z, data)[1]
+        return step @ step, hess
+
+    def one(z, data):
+        def round_(carry):
+            z, steps, k, _ = carry
+            precond = precondition(program.hessian(z, data))
+            sol = optx.minimise(
+                whitened, solver, jnp.zeros_like(z), args=(z, precond, data), max_steps=500, throw=False
+            )
+            z = z + precond @ sol.value
+            return z, steps + sol.stats["num_steps"], k + 1, newton_decrement(z, data)[0]
+
+        def more(carry):
+            return (carry[2] < rounds) & (carry[3] >= 1e-8)
+
+        # under vmap the loop runs until every dataset has converged; finished ones are held fixed
+        z, steps, _, _ = jax.lax.while_loop(more, round_, (z, 0, 0, jnp.inf))
+        decrement, hess = newton_decrement(z, data)
+        return z, hess, decrement, steps
+
+    return jax.jit(jax.vmap(one))
+
+
 def laplace(program: Program, data: ModelData, z0: jax.Array | None = None) -> LaplaceResult:
     """Mode and Gaussian covariance (inverse Hessian) of the posterior, searched from ``z0``."""
     z_map, converged, steps = find_map(program, data, z0)
-    hess = np.asarray(program.hessian(z_map, data))
+    return _gaussian_at(program, data, z_map, converged, steps, np.asarray(program.hessian(z_map, data)))
+
+
+def laplace_many(
+    program: Program, datas: list[ModelData], starts: list[jax.Array], rounds: int = 4, chunk: int = 16
+) -> list[LaplaceResult]:
+    """:func:`laplace` for many datasets of one structure, vectorised with ``jax.vmap``.
+
+    The datasets are stacked along a leading axis and the whole search (the
+    Hessian-whitened BFGS rounds of :func:`find_map`, a fixed ``rounds`` of
+    them) runs as one compiled program over batches of ``chunk`` datasets
+    (the last one padded), compiled once per structure.
+    """
+    run = _batched_map(program, rounds)
+    out: list[LaplaceResult] = []
+    for first in range(0, len(datas), chunk):
+        idx = list(range(first, min(first + chunk, len(datas))))
+        padded = idx + [idx[-1]] * (chunk - len(idx))  # one batch size: one compilation
+        stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *(datas[i] for i in padded))
+        z, hess, grad_step, steps = (
+            np.asarray(a) for a in run(jnp.stack([jnp.asarray(starts[i]) for i in padded]), stacked)
+        )
+        out += [
+            _gaussian_at(program, datas[i], z[k], bool(grad_step[k] < 1e-8), int(steps[k]), hess[k])
+            for k, i in enumerate(idx)
+        ]
+    return out
+
+
+def _gaussian_at(program: Program, data: ModelData, z_map, converged: bool, steps: int, hess: np.ndarray):
     hess = 0.5 * (hess + hess.T)
     try:
         chol = np.linalg.cholesky(hess)
@@ -108,8 +187,22 @@ def laplace(program: Program, data: ModelData, z0: jax.Array | None = None) -> L
 def laplace_draws(result: LaplaceResult, n: int, seed: int) -> np.ndarray:
     """``n`` draws of the flat unconstrained vector from the Gaussian."""
     rng = np.random.default_rng(seed)
-    chol = np.linalg.cholesky(result.cov + 1e-300 * np.eye(result.cov.shape[0]))
-    return result.mode + rng.standard_normal((n, result.mode.size)) @ chol.T
+    return result.mode + rng.standard_normal((n, result.mode.size)) @ covariance_factor(result.cov).T
+
+
+def covariance_factor(cov: np.ndarray) -> np.ndarray:
+    """``L`` with ``L L^T = cov``.  A singular, indefinite or non-finite ``cov`` (a failed mode,
+    a hierarchical scale at its boundary) gets its eigenvalues' magnitudes floored at 1e-8 of
+    the largest (non-finite entries zeroed) so that draws and whitening still run; the fit
+    that produced it is reported as failed elsewhere."""
+    try:
+        return np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        sym = np.nan_to_num(0.5 * (cov + cov.T), nan=0.0, posinf=0.0, neginf=0.0)
+        w, v = np.linalg.eigh(sym)
+        w = np.abs(w)
+        w = np.maximum(w, 1e-8 * w.max()) if w.max() > 0 else np.full_like(w, 1e-12)
+        return v * np.sqrt(w)
 
 
 def integrated_draws(

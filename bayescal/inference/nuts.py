@@ -27,9 +27,10 @@ from numpyro.infer.hmc import hmc
 
 from ..data import ModelData
 from ..spec import InferenceSpec
+from .laplace import covariance_factor
 from .program import Program
 
-__all__ = ["NutsDraws", "run_nuts"]
+__all__ = ["NutsDraws", "run_nuts", "run_nuts_many"]
 
 
 class NutsDraws(NamedTuple):
@@ -104,17 +105,6 @@ def _compiled(program: Program, settings: tuple):
     return jax.jit(chain)
 
 
-def _whitening(cov: np.ndarray) -> np.ndarray:
-    """``L`` with ``L L^T = cov``; a singular or indefinite ``cov`` (a hierarchical scale at
-    its boundary) gets its eigenvalues floored at 1e-8 of the largest instead."""
-    try:
-        return np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        w, v = np.linalg.eigh(0.5 * (cov + cov.T))
-        w = np.maximum(np.abs(w), 1e-8 * np.abs(w).max())
-        return v * np.sqrt(w)
-
-
 def run_nuts(
     program: Program,
     data: ModelData,
@@ -141,24 +131,56 @@ def run_nuts(
         ``progress(iterations_done)``, called every 50 iterations (warmup
         included) from the running program.
     """
-    key = jax.random.PRNGKey(seed)
-    k_jit, k_chains = jax.random.split(key)
+    _Progress.active = _Progress(progress, settings.chains)
+    try:
+        return run_nuts_many(program, [data], [start], [cov], settings, [seed])[0]
+    finally:
+        _Progress.active = None
+
+
+def run_nuts_many(
+    program: Program,
+    datas: list[ModelData],
+    starts: list[jax.Array],
+    covs: list[np.ndarray],
+    settings: InferenceSpec,
+    seeds: list[int],
+    done=None,
+) -> list[NutsDraws]:
+    """:func:`run_nuts` for many datasets of one structure: one compiled chain program, every
+    (dataset, chain) pair queued on one thread pool, so all cores stay busy.
+
+    Dataset ``i`` gets exactly the chains ``run_nuts(..., seed=seeds[i])`` would.
+    ``done(n)`` is called as datasets finish.
+    """
     n = settings.chains
-    jitter = jax.random.uniform(k_jit, (n, start.size), minval=-1.0, maxval=1.0)
-    chol = jnp.asarray(_whitening(np.asarray(cov)))
     run = _compiled(
         program, (settings.dense_mass, settings.target_accept, settings.max_tree_depth, settings.warmup, settings.draws)
     )
-    keys = jax.random.split(k_chains, n)
-    center = jnp.asarray(start)
+    jobs = []
+    for data, start, cov, seed in zip(datas, starts, covs, seeds, strict=True):
+        k_jit, k_chains = jax.random.split(jax.random.PRNGKey(seed))
+        jitter = jax.random.uniform(k_jit, (n, np.size(start)), minval=-1.0, maxval=1.0)
+        keys = jax.random.split(k_chains, n)
+        chol = jnp.asarray(covariance_factor(np.asarray(cov)))
+        center = jnp.asarray(start)
+        jobs += [(c, keys[c], 0.5 * jitter[c], data, center, chol) for c in range(n)]
 
-    def one(c):
-        return jax.device_get(run(c, keys[c], 0.5 * jitter[c], data, center, chol))
+    finished, lock = [0] * len(datas), threading.Lock()
 
-    _Progress.active = _Progress(progress, n)
-    try:
-        with ThreadPoolExecutor(max_workers=max(1, min(n, os.cpu_count() or 1))) as pool:
-            chains = list(pool.map(one, range(n)))
-    finally:
-        _Progress.active = None
-    return NutsDraws(*(np.stack([np.asarray(c[k]) for c in chains]) for k in range(len(NutsDraws._fields))))
+    def one(j):
+        out = jax.device_get(run(*jobs[j]))
+        if done is not None:
+            with lock:
+                finished[j // n] += 1
+                if finished[j // n] == n:
+                    done(sum(f == n for f in finished))
+        return out
+
+    with ThreadPoolExecutor(max_workers=max(1, min(len(jobs), os.cpu_count() or 1))) as pool:
+        chains = list(pool.map(one, range(len(jobs))))
+    fields = range(len(NutsDraws._fields))
+    return [
+        NutsDraws(*(np.stack([np.asarray(c[k]) for c in chains[i * n : (i + 1) * n]]) for k in fields))
+        for i in range(len(datas))
+    ]
