@@ -15,6 +15,7 @@ enable_float64()
 enable_compilation_cache()  # compiled programs persist across processes; BAYESCAL_NO_CACHE=1 turns it off
 
 from .assemble import CalibrationModel, build_model  # noqa: E402
+from .batch import FitBatch, fit_many  # noqa: E402
 from .calibration import CalibratedRange, Calibration, Setting  # noqa: E402
 from .design import Design, Truth, load_design  # noqa: E402
 from .diagnostics import Diagnostics  # noqa: E402
@@ -28,6 +29,8 @@ from .nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves
 from .photon_transfer import Characterization, characterize, standard_method  # noqa: E402
 from .plan import Plan, default_window, plan_exposure  # noqa: E402
 from .predict import predict  # noqa: E402
+from .sbc import SBCResult, run_sbc  # noqa: E402
+from .scene import SceneChoice, choose_for_scene  # noqa: E402
 from .simulate import Simulation, simulate  # noqa: E402
 from .spec import ModelSpec, load_spec  # noqa: E402
 from .table import MeasurementTable, load_table  # noqa: E402
@@ -43,6 +46,7 @@ __all__ = [
     "Design",
     "Diagnostics",
     "Fit",
+    "FitBatch",
     "FitFailedError",
     "FitFailedWarning",
     "Inversion",
@@ -50,6 +54,8 @@ __all__ = [
     "MeasurementTable",
     "ModelSpec",
     "Plan",
+    "SBCResult",
+    "SceneChoice",
     "Setting",
     "Simulation",
     "Steps",
@@ -58,11 +64,13 @@ __all__ = [
     "Truth",
     "build_model",
     "characterize",
+    "choose_for_scene",
     "compare_nonlinearity",
     "default_window",
     "enable_compilation_cache",
     "enable_float64",
     "fit",
+    "fit_many",
     "invert",
     "invert_image",
     "load_design",
@@ -78,6 +86,7 @@ __all__ = [
     "radiance_draws",
     "read_descriptor",
     "read_image",
+    "run_sbc",
     "simulate",
     "simulate_curves",
     "standard_method",

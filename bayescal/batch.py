@@ -23,6 +23,7 @@ import pandas as pd
 import xarray as xr
 
 from .assemble import CalibrationModel, build_model
+from .derived import physical_draws
 from .errors import SpecError
 from .fit import OUTLIER_Z, SAMPLED, Fit, _finish, _laplace_z, _nuts_stats
 from .inference.laplace import LaplaceResult, laplace, laplace_many
@@ -79,6 +80,15 @@ class FitBatch:
     def ok(self) -> np.ndarray:
         """Whether each dataset's fit passed its diagnostics."""
         return self.diagnostics["ok"].to_numpy()
+
+    def physical(self, i: int) -> dict[str, np.ndarray]:
+        """Dataset ``i``'s reported quantities (``gain``, ``A_abs``, ...), ``(chain, draw, ...)``,
+        without building a full :class:`~bayescal.fit.Fit` (the same draws ``fit(i)`` reports)."""
+        model = self.models[i]
+        chains, draws, dim = self._z[i].shape
+        sites = self._program.constrain(self._z[i].reshape(-1, dim), model.data)
+        sites = {k: np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]) for k, v in sites.items()}
+        return physical_draws(model, sites, self.seeds[i])
 
     def fit(self, i: int, strict: bool = False) -> Fit:
         """Dataset ``i`` as a full :class:`~bayescal.fit.Fit` (same draws; physical quantities,

@@ -108,6 +108,14 @@ def _parser() -> argparse.ArgumentParser:
     sc.add_argument("--out", help="write the comparison as JSON here")
     sc.add_argument("--seed", type=int, default=0)
     sc.set_defaults(func=_cmd_scene)
+    sb = sub.add_parser("sbc", help="simulation-based calibration of a model over a table's design (rank tests)")
+    sb.add_argument("data", help="CSV or Parquet table: its design (settings, levels) is used, not its readings")
+    sb.add_argument("--model", required=True, help="model spec (TOML); its priors generate the datasets")
+    sb.add_argument("--sims", type=int, default=200, help="simulated datasets (default 200)")
+    sb.add_argument("--backend", default="nuts", choices=["nuts", "laplace"])
+    sb.add_argument("--out", required=True, help="output stem: writes STEM.csv, STEM.md, STEM.png")
+    sb.add_argument("--seed", type=int, default=0)
+    sb.set_defaults(func=_cmd_sbc)
     s = sub.add_parser("simulate", help="simulate a measurement table from a design with a [truth] table")
     s.add_argument("--design", required=True, help="design TOML (names its spec, holds [truth])")
     s.add_argument("--model", help="model spec (default: the design's)")
@@ -340,6 +348,20 @@ def _cmd_scene(args) -> int:
     if args.out:
         write_json_atomic(args.out, choice.to_dict())
     return 0
+
+
+def _cmd_sbc(args) -> int:
+    from . import build_model, load_spec, load_table
+    from .progress import progress_bar
+    from .sbc import run_sbc
+
+    model = build_model(load_table(args.data), load_spec(args.model))
+    with progress_bar(args.sims, f"SBC ({args.backend})") as bar:
+        result = run_sbc(model, args.sims, args.backend, seed=args.seed, progress=bar)
+    result.save(args.out)
+    print(result.to_markdown().split("\n\n|")[0])
+    print(f"wrote {args.out}.csv, {args.out}.md, {args.out}.png")
+    return 0 if result.batch.ok.mean() >= 0.99 else 1
 
 
 def _cmd_report(args) -> int:
