@@ -25,7 +25,7 @@ import xarray as xr
 from .assemble import CalibrationModel, build_model
 from .derived import physical_draws
 from .errors import SpecError
-from .fit import OUTLIER_Z, SAMPLED, Fit, _finish, _laplace_z, _nuts_stats
+from .fit import OUTLIER_Z, SAMPLED, Fit, _finish, _laplace_z, _nuts_stats, retry_settings
 from .inference.laplace import LaplaceResult, laplace, laplace_many
 from .inference.lsq import lsq_baseline
 from .inference.nuts import NutsDraws, run_nuts_many
@@ -55,8 +55,10 @@ class FitBatch:
         Constrained sampled parameters, shape ``(dataset, chain, draw, ...)``
         in the model's scaled units (as in ``posterior.nc``).
     diagnostics : pandas.DataFrame
-        Per dataset: ``divergences``, ``max_rhat``, ``min_ess_bulk``,
-        ``min_ess_tail``, ``map_ok``, ``max_abs_residual_z`` and ``ok``.
+        Per dataset: ``divergences``, ``retried`` (chains rerun with smaller
+        steps after divergences, see ``InferenceSpec.retry_target_accept``),
+        ``max_rhat``, ``min_ess_bulk``, ``min_ess_tail``, ``map_ok``,
+        ``max_abs_residual_z`` and ``ok``.
     timings : dict
         Wall seconds of the stages, for the whole batch.
     """
@@ -206,6 +208,19 @@ def fit_models(
             list(seeds),
             progress,
         )
+        again = [i for i, o in enumerate(outs) if retry_settings(spec.inference, int(o.diverging.sum()), extras[i])]
+        if again:  # the divergent datasets once more, with smaller steps (as fit() does)
+            retry = retry_settings(spec.inference, 1, {})
+            redo = run_nuts_many(
+                program,
+                [models[i].data for i in again],
+                [results[i].mode for i in again],
+                [results[i].cov for i in again],
+                retry,
+                [seeds[i] for i in again],
+            )
+            for i, out in zip(again, redo, strict=True):
+                outs[i] = out
         z = np.stack([o.z for o in outs])
         stats = tuple(_nuts_stats(o) for o in outs)
     else:
@@ -219,7 +234,7 @@ def fit_models(
     timings[backend] = time.perf_counter() - t
     t = time.perf_counter()
     draws, resid_z = _constrained(program, models, z)
-    diagnostics = _diagnostics(draws, stats, results, resid_z, backend, spec)
+    diagnostics = _diagnostics(draws, stats, results, resid_z, backend, spec, extras)
     timings["diagnostics"] = time.perf_counter() - t
     return FitBatch(
         models=tuple(models),
@@ -254,7 +269,7 @@ def _constrained(program: Program, models, z: np.ndarray) -> tuple[dict[str, np.
     return {k: np.stack(v) for k, v in out.items()}, worst
 
 
-def _diagnostics(draws, stats, results, resid_z, backend: str, spec: ModelSpec) -> pd.DataFrame:
+def _diagnostics(draws, stats, results, resid_z, backend: str, spec: ModelSpec, extras) -> pd.DataFrame:
     settings = spec.inference
     n = len(results)
     frame = pd.DataFrame(
@@ -272,6 +287,7 @@ def _diagnostics(draws, stats, results, resid_z, backend: str, spec: ModelSpec) 
             }
         )
         frame["divergences"] = [int(np.sum(s["diverging"])) for s in stats]
+        frame["retried"] = ["retried" in e for e in extras]
         frame["max_rhat"] = _per_dataset(az.rhat(ds), np.nanmax, n)
         frame["min_ess_bulk"] = _per_dataset(az.ess(ds, method="bulk"), np.nanmin, n)
         frame["min_ess_tail"] = _per_dataset(az.ess(ds, method="tail"), np.nanmin, n)

@@ -20,6 +20,7 @@ def render_summary(result) -> str:
             if np.isfinite(result.diagnostics.max_rhat)
             else ""
         ),
+        *([f"Note: {result.diagnostics.extra['retried']}"] if "retried" in result.diagnostics.extra else []),
         "",
         f"DN = A0 + A1 L + ... at exposure {ref.exposure_s:g} s, gain {ref.gain:g}, TDI {ref.tdi_stages:g}; "
         f"L in {layout.unit}",

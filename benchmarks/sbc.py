@@ -9,7 +9,7 @@ prior, readings from the model over the shipped design, fit each dataset
 (:func:`bayescal.batch.fit_models`, one compilation), and test that the ranks
 of the truths among 99 thinned posterior draws are uniform.  Writes
 ``benchmarks/results/sbc_<scenario>_<backend>.{csv,md,png}`` and
-``benchmarks/results/sbc.md``.
+``benchmarks/results/sbc.md`` (other ``--sims``/``--seed`` values add ``_n<sims>_s<seed>``).
 """
 
 from __future__ import annotations
@@ -44,13 +44,17 @@ def main() -> None:
     parser.add_argument("--sims", type=int, default=200)
     parser.add_argument("--backends", default="nuts,laplace")
     parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--only", help="run only this scenario (seed000 or seed002)")
     args = parser.parse_args()
     lines = ["# Simulation-based calibration", ""]
+    tag = "" if (args.sims, args.seed) == (200, 2026) else f"_n{args.sims}_s{args.seed}"
     for name, model in scenarios().items():
+        if args.only and args.only != name:
+            continue
         for backend in args.backends.split(","):
             with progress_bar(args.sims, f"SBC {name} {backend}", quiet=False) as bar:
                 res = run_sbc(model, args.sims, backend, seed=args.seed, progress=bar)
-            res.save(RESULTS / f"sbc_{name}_{backend}")
+            res.save(RESULTS / f"sbc_{name}_{backend}{tag}")
             summ = res.summary()
             cov_all = float(res.covered.to_numpy().mean())
             mc_sd = np.sqrt(0.0475 / res.n_sims / len(summ))
@@ -71,7 +75,7 @@ def main() -> None:
                 "",
             ]
             print("\n".join(lines[-8:]), flush=True)
-    (RESULTS / "sbc.md").write_text("\n".join(lines))
+    (RESULTS / f"sbc{tag}.md").write_text("\n".join(lines))
 
 
 if __name__ == "__main__":
