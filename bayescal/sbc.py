@@ -72,6 +72,8 @@ class SBCResult:
         The fits (draws, diagnostics).
     rejected : int
         Simulated datasets redrawn because no table could hold them.
+    seconds : float
+        Wall time of the whole run (simulation, fits, ranks).
     """
 
     ranks: pd.DataFrame
