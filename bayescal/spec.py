@@ -56,7 +56,10 @@ class ResponseSpec:
     ``S = G x`` (DESIGN.md section 2).  ``pooled`` partially pools the
     nonlinearity across channels (it is a property of the sense node and ADC,
     shared by all colours); ``gain_prior = "pooled"`` also pools the
-    per-channel log gains.
+    per-channel log gains.  Pooling is off by default: NUTS does not yet
+    sample the pooled models (the Laplace whitening taken at the mode
+    degenerates in the pooling scales; a fit reports R-hat ~2 and fails
+    loudly), and Laplace only warns.
 
     Priors, in the model's scaled units (DESIGN.md section 5): the gain ``G``
     is the linear signal at the brightest stimulus of the table as a
@@ -69,7 +72,7 @@ class ResponseSpec:
     """
 
     order: int = 1
-    pooled: bool = True
+    pooled: bool = False
     gain_prior: Literal["lognormal", "normal", "pooled"] = "lognormal"
     gain_prior_median: float = 0.5
     gain_prior_log_sd: float = 2.0
@@ -83,7 +86,8 @@ class DarkSpec:
     ``gain_dependence = "proportional"`` makes the offset scale with the gain
     factor instead (seed 002 eq. 12, DN = g (... + 28.72)), which also
     predicts unmeasured gains.  ``pooled`` partially pools the channel
-    offsets (seed 000: channel colour barely matters for dark).
+    offsets (seed 000: channel colour barely matters for dark); off by
+    default, see :class:`ResponseSpec`.
 
     ``temperature``: the dark current (the exposure slope) doubles every
     ``T_d`` degC, ``slope(T) = slope(T_ref) 2^((T - T_ref) / T_d)`` (seed 002:
@@ -97,7 +101,7 @@ class DarkSpec:
 
     gain_dependence: Literal["per_setting", "proportional"] = "per_setting"
     exposure_slope: bool = True
-    pooled: bool = True
+    pooled: bool = False
     temperature: bool = False
     temperature_ref_c: float = 20.0
     doubling_c: float = 7.0
