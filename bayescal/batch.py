@@ -25,7 +25,7 @@ import xarray as xr
 from .assemble import CalibrationModel, build_model
 from .derived import physical_draws
 from .errors import SpecError
-from .fit import OUTLIER_Z, SAMPLED, Fit, _finish, _laplace_z, _nuts_stats, retry_settings
+from .fit import OUTLIER_Z, SAMPLED, Fit, _diagnose, _finish, _laplace_z, _nuts_stats, note_retry
 from .inference.laplace import LaplaceResult, laplace, laplace_many
 from .inference.lsq import lsq_baseline
 from .inference.nuts import NutsDraws, run_nuts_many
@@ -208,19 +208,8 @@ def fit_models(
             list(seeds),
             progress,
         )
-        again = [i for i, o in enumerate(outs) if retry_settings(spec.inference, int(o.diverging.sum()), extras[i])]
-        if again:  # the divergent datasets once more, with smaller steps (as fit() does)
-            retry = retry_settings(spec.inference, 1, {})
-            redo = run_nuts_many(
-                program,
-                [models[i].data for i in again],
-                [results[i].mode for i in again],
-                [results[i].cov for i in again],
-                retry,
-                [seeds[i] for i in again],
-            )
-            for i, out in zip(again, redo, strict=True):
-                outs[i] = out
+        for out, extra in zip(outs, extras, strict=True):
+            note_retry(out, spec.inference, extra)
         z = np.stack([o.z for o in outs])
         stats = tuple(_nuts_stats(o) for o in outs)
     else:
@@ -279,6 +268,8 @@ def _diagnostics(draws, stats, results, resid_z, backend: str, spec: ModelSpec, 
         }
     )
     ok = frame["map_ok"].to_numpy() & (resid_z <= OUTLIER_Z)
+    if backend == "laplace":  # the single-fit verdict: MAP converged, integration grid not truncated
+        ok &= np.array([_diagnose(backend, None, 0, spec, e, r).ok for e, r in zip(extras, results, strict=True)])
     if backend == "nuts":
         ds = xr.Dataset(
             {

@@ -56,10 +56,7 @@ def _parser() -> argparse.ArgumentParser:
     iv.add_argument("image", nargs="?", help="TIFF, PNG or NPY image")
     iv.add_argument("--dn", type=_floats, help="DN values instead of an image (comma list)")
     _setting_args(iv, required=False)
-    iv.add_argument("--cfa", help="Bayer pattern of a raw mosaic: RGGB, BGGR, GRBG, GBRG")
-    iv.add_argument("--channel", help="channel of a single-channel image or of --dn values")
-    iv.add_argument("--channels", help="comma list naming the planes of an (H, W, C) image")
-    iv.add_argument("--n-avg", type=float, default=1.0, help="pixels x frames averaged per value (default 1)")
+    _image_args(iv, channel_help="channel of a single-channel image or of --dn values")
     iv.add_argument("--out", help="output directory (image) or CSV (--dn)")
     iv.add_argument("--seed", type=int, default=0)
     iv.set_defaults(func=_cmd_invert)
@@ -99,12 +96,9 @@ def _parser() -> argparse.ArgumentParser:
     sc.add_argument("image", help="TIFF, PNG or NPY image (the scene)")
     sc.add_argument("posteriors", nargs="+", help="fit directories (or posterior.nc) of the candidate models")
     _setting_args(sc, required=False)
-    sc.add_argument("--cfa", help="Bayer pattern of a raw mosaic: RGGB, BGGR, GRBG, GBRG")
-    sc.add_argument("--channel", help="channel of a single-channel image")
-    sc.add_argument("--channels", help="comma list naming the planes of an (H, W, C) image")
+    _image_args(sc, channel_help="channel of a single-channel image")
     sc.add_argument("--full", help="the reference candidate (default: the highest response order)")
     sc.add_argument("--tol", type=float, default=0.1, help="allowed deviation in posterior sds (default 0.1)")
-    sc.add_argument("--n-avg", type=float, default=1.0, help="pixels x frames averaged per value (default 1)")
     sc.add_argument("--out", help="write the comparison as JSON here")
     sc.add_argument("--seed", type=int, default=0)
     sc.set_defaults(func=_cmd_scene)
@@ -143,6 +137,14 @@ def _setting_args(p: argparse.ArgumentParser, required: bool) -> None:
     p.add_argument("--gain", type=float, default=None, help="gain factor (default the reference gain)")
     p.add_argument("--tdi-stages", type=float, default=None, help="TDI stages (default the reference)")
     p.add_argument("--temperature-c", type=float, default=None, help="sensor temperature, degC (default reference)")
+
+
+def _image_args(p, channel_help: str) -> None:
+    """How an image's pixels map to channels, and how many readings each value averages."""
+    p.add_argument("--cfa", help="Bayer pattern of a raw mosaic: RGGB, BGGR, GRBG, GBRG")
+    p.add_argument("--channel", help=channel_help)
+    p.add_argument("--channels", help="comma list naming the planes of an (H, W, C) image")
+    p.add_argument("--n-avg", type=float, default=1.0, help="pixels x frames averaged per value (default 1)")
 
 
 def _setting(args, cal):

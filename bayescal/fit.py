@@ -247,9 +247,7 @@ def fit(
         z = _laplace_z(model, program, result, seed, extra)
     elif backend == "nuts":
         out = run_nuts(program, model.data, result.mode, result.cov, spec.inference, seed, progress)
-        retry = retry_settings(spec.inference, int(out.diverging.sum()), extra)
-        if retry is not None:
-            out = run_nuts(program, model.data, result.mode, result.cov, retry, seed, progress)
+        note_retry(out, spec.inference, extra)
         z, divergences, stats = out.z, int(out.diverging.sum()), _nuts_stats(out)
     else:
         out = run_emcee(program, model.data, result.mode, result.cov, spec.inference, seed, progress)
@@ -275,20 +273,13 @@ def _laplace_z(model: CalibrationModel, program, result, seed: int, extra: dict)
     return z[None]
 
 
-def retry_settings(settings, divergences: int, extra: dict):
-    """Settings for a second NUTS run after ``divergences`` divergent transitions (None: no retry).
-
-    Divergences usually mean the step size is too large for a region of high
-    curvature (a scale parameter near zero); a higher target acceptance
-    shrinks the steps.  The first attempt is recorded in ``extra``.
-    """
-    if divergences == 0 or settings.retry_target_accept <= settings.target_accept:
-        return None
-    extra["retried"] = (
-        f"{divergences} divergent transitions at target_accept {settings.target_accept:g}; "
-        f"chains rerun at {settings.retry_target_accept:g}"
-    )
-    return replace(settings, target_accept=settings.retry_target_accept)
+def note_retry(out, settings, extra: dict) -> None:
+    """Record in ``extra`` that the chains were rerun with smaller steps after divergences."""
+    if out.first_divergences:
+        extra["retried"] = (
+            f"{out.first_divergences} divergent transitions at target_accept {settings.target_accept:g}; "
+            f"chains rerun at {settings.retry_target_accept:g}"
+        )
 
 
 def _nuts_stats(out) -> dict:

@@ -274,9 +274,14 @@ def _truncated_upper(draws: np.ndarray, rows: np.ndarray, level: float) -> np.nd
     return out
 
 
+def noise_normals(n_draws: int, seed: int) -> np.ndarray:
+    """The standard normals of the reading noise, one per posterior draw (common to every DN value)."""
+    return np.random.default_rng(np.random.SeedSequence([seed, 0x1D7E])).standard_normal(n_draws)
+
+
 def _summaries(cal, channel, values, setting, n_avg, prnu, level, noise, seed) -> np.ndarray:
     """``(5, V)``: median, lower, upper, bound code, extrapolated flag per distinct value."""
-    z = np.random.default_rng(np.random.SeedSequence([seed, 0x1D7E])).standard_normal(cal.n_draws) if noise else None
+    z = noise_normals(cal.n_draws, seed) if noise else None
     tail = (1.0 - level) / 2.0
     out = np.empty((5, values.size))
     sat = cal.saturation_dn

@@ -29,7 +29,7 @@ import pandas as pd
 from .calibration import Calibration, Setting
 from .errors import SpecError
 from .images import channel_views, invert_image
-from .invert import _quantiles, radiance_draws
+from .invert import _quantiles, noise_normals, radiance_draws
 
 __all__ = ["SceneChoice", "choose_for_scene"]
 
@@ -204,7 +204,7 @@ def _quantile_table(cal: Calibration, channel: str, dn: np.ndarray, setting, n_a
     same noise normals (as :func:`bayescal.invert.invert` does), so the
     comparison carries little Monte Carlo noise.
     """
-    z = np.random.default_rng(np.random.SeedSequence([seed, 0x1D7E])).standard_normal(cal.n_draws)
+    z = noise_normals(cal.n_draws, seed)
     out = np.empty((5, dn.size))
     sat = cal.saturation_dn
 

@@ -154,3 +154,7 @@ def test_divergences_are_retried_with_smaller_steps():
     assert fit.ok and fit.diagnostics.divergences == 0
     assert fit.diagnostics.extra["retried"].startswith(f"{once.diagnostics.divergences} divergent transitions")
     assert "chains rerun at 0.95" in fit.to_dict()["diagnostics"]["retried"]
+    # fit_many shares the mechanism: the same dataset and seed is retried the same way
+    batch = bc.fit_many([table], spec, "nuts", seeds=[5])
+    assert batch.diagnostics["retried"].tolist() == [True] and batch.ok.all()
+    np.testing.assert_array_equal(batch.draws["G"][0], np.asarray(fit.posterior["posterior"]["G"]))

@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from functools import lru_cache
 from typing import NamedTuple
 
@@ -42,6 +43,8 @@ class NutsDraws(NamedTuple):
     accept_prob: np.ndarray
     energy: np.ndarray
     step_size: np.ndarray
+    #: divergent transitions of a first attempt that was rerun with smaller steps (0: no rerun)
+    first_divergences: int = 0
 
 
 _EVERY = 50
@@ -151,6 +154,8 @@ def run_nuts_many(
     (dataset, chain) pair queued on one thread pool, so all cores stay busy.
 
     Dataset ``i`` gets exactly the chains ``run_nuts(..., seed=seeds[i])`` would.
+    Datasets whose chains diverged are run once more at
+    ``settings.retry_target_accept`` (their ``first_divergences`` says so).
     ``done(n)`` is called as datasets finish.
     """
     n = settings.chains
@@ -179,8 +184,23 @@ def run_nuts_many(
 
     with ThreadPoolExecutor(max_workers=max(1, min(len(jobs), os.cpu_count() or 1))) as pool:
         chains = list(pool.map(one, range(len(jobs))))
-    fields = range(len(NutsDraws._fields))
-    return [
+    fields = range(len(NutsDraws._fields) - 1)
+    outs = [
         NutsDraws(*(np.stack([np.asarray(c[k]) for c in chains[i * n : (i + 1) * n]]) for k in fields))
         for i in range(len(datas))
     ]
+    again = [i for i, o in enumerate(outs) if o.diverging.any()]
+    if again and settings.retry_target_accept > settings.target_accept:
+        # divergences: a region of high curvature (a scale near zero); rerun those datasets once with smaller steps
+        retry = replace(settings, target_accept=settings.retry_target_accept)
+        redo = run_nuts_many(
+            program,
+            [datas[i] for i in again],
+            [starts[i] for i in again],
+            [covs[i] for i in again],
+            retry,
+            [seeds[i] for i in again],
+        )
+        for i, out in zip(again, redo, strict=True):
+            outs[i] = out._replace(first_divergences=int(outs[i].diverging.sum()))
+    return outs
