@@ -3,92 +3,138 @@
 Every calibration quantity (per-channel gain, offset, nonlinearity, dark
 signal, the integrating sphere's radiance errors) is a random variable; the
 models are fitted by NUTS, emcee or a Laplace approximation, beside the
-least-squares baseline the calibration literature uses.  See DESIGN.md and
-the README.
+least-squares baseline the calibration literature uses.  See the README and
+``docs/``.
+
+The public API is flat and loaded on first use: ``import bayescal`` imports
+neither JAX nor arviz and changes no global setting, so ``bayescal --help``
+is instant.  The first use of a computing attribute switches JAX to float64
+and turns on bayescal's compilation cache (:func:`bayescal.enable_numerics`).
 """
+
+from __future__ import annotations
+
+import importlib
+import sys
+import types
+from typing import TYPE_CHECKING, Any
+
+from ._config import enable_compilation_cache, enable_float64, enable_numerics
+from .errors import BayescalError, FitFailedError, FitFailedWarning, SpecError, TableError
 
 __version__ = "0.1.0"
 
-from ._config import enable_compilation_cache, enable_float64
+#: public name -> module that defines it
+_LAZY = {
+    "CalibrationModel": ".assemble",
+    "build_model": ".assemble",
+    "FitBatch": ".batch",
+    "fit_many": ".batch",
+    "CalibratedRange": ".calibration",
+    "Calibration": ".calibration",
+    "Setting": ".calibration",
+    "Design": ".design",
+    "Truth": ".design",
+    "load_design": ".design",
+    "Diagnostics": ".diagnostics",
+    "Steps": ".emva",
+    "load_steps": ".emva",
+    "read_descriptor": ".emva",
+    "BACKENDS": ".fit",
+    "Fit": ".fit",
+    "fit": ".fit",
+    "invert_image": ".images",
+    "read_image": ".images",
+    "write_radiance_maps": ".images",
+    "LinearFit": ".inference.lsq",
+    "lsq_baseline": ".inference.lsq",
+    "lstsq": ".inference.lsq",
+    "polyfit": ".inference.lsq",
+    "Inversion": ".invert",
+    "invert": ".invert",
+    "radiance_draws": ".invert",
+    "compare_nonlinearity": ".nonlinearity",
+    "patent_baseline": ".nonlinearity",
+    "simulate_curves": ".nonlinearity",
+    "Characterization": ".photon_transfer",
+    "characterize": ".photon_transfer",
+    "standard_method": ".photon_transfer",
+    "Plan": ".plan",
+    "default_window": ".plan",
+    "plan_exposure": ".plan",
+    "predict": ".predict",
+    "SBCResult": ".sbc",
+    "run_sbc": ".sbc",
+    "SceneChoice": ".scene",
+    "choose_for_scene": ".scene",
+    "Simulation": ".simulate",
+    "simulate": ".simulate",
+    "ModelSpec": ".spec",
+    "load_spec": ".spec",
+    "MeasurementTable": ".table",
+    "load_table": ".table",
+}
 
-enable_float64()
-enable_compilation_cache()  # compiled programs persist across processes; BAYESCAL_NO_CACHE=1 turns it off
+__all__ = sorted(
+    [
+        "__version__",
+        "BayescalError",
+        "FitFailedError",
+        "FitFailedWarning",
+        "SpecError",
+        "TableError",
+        "enable_compilation_cache",
+        "enable_float64",
+        "enable_numerics",
+        *_LAZY,
+    ]
+)
 
-from .assemble import CalibrationModel, build_model  # noqa: E402
-from .batch import FitBatch, fit_many  # noqa: E402
-from .calibration import CalibratedRange, Calibration, Setting  # noqa: E402
-from .design import Design, Truth, load_design  # noqa: E402
-from .diagnostics import Diagnostics  # noqa: E402
-from .emva import Steps, load_steps, read_descriptor  # noqa: E402
-from .errors import BayescalError, FitFailedError, FitFailedWarning, SpecError, TableError  # noqa: E402
-from .fit import BACKENDS, Fit, fit  # noqa: E402
-from .images import invert_image, read_image, write_radiance_maps  # noqa: E402
-from .inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit  # noqa: E402
-from .invert import Inversion, invert, radiance_draws  # noqa: E402
-from .nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves  # noqa: E402
-from .photon_transfer import Characterization, characterize, standard_method  # noqa: E402
-from .plan import Plan, default_window, plan_exposure  # noqa: E402
-from .predict import predict  # noqa: E402
-from .sbc import SBCResult, run_sbc  # noqa: E402
-from .scene import SceneChoice, choose_for_scene  # noqa: E402
-from .simulate import Simulation, simulate  # noqa: E402
-from .spec import ModelSpec, load_spec  # noqa: E402
-from .table import MeasurementTable, load_table  # noqa: E402
 
-__all__ = [
-    "__version__",
-    "BACKENDS",
-    "BayescalError",
-    "CalibratedRange",
-    "Calibration",
-    "CalibrationModel",
-    "Characterization",
-    "Design",
-    "Diagnostics",
-    "Fit",
-    "FitBatch",
-    "FitFailedError",
-    "FitFailedWarning",
-    "Inversion",
-    "LinearFit",
-    "MeasurementTable",
-    "ModelSpec",
-    "Plan",
-    "SBCResult",
-    "SceneChoice",
-    "Setting",
-    "Simulation",
-    "Steps",
-    "SpecError",
-    "TableError",
-    "Truth",
-    "build_model",
-    "characterize",
-    "choose_for_scene",
-    "compare_nonlinearity",
-    "default_window",
-    "enable_compilation_cache",
-    "enable_float64",
-    "fit",
-    "fit_many",
-    "invert",
-    "invert_image",
-    "load_design",
-    "load_spec",
-    "load_steps",
-    "load_table",
-    "lsq_baseline",
-    "lstsq",
-    "patent_baseline",
-    "plan_exposure",
-    "polyfit",
-    "predict",
-    "radiance_draws",
-    "read_descriptor",
-    "read_image",
-    "run_sbc",
-    "simulate",
-    "simulate_curves",
-    "standard_method",
-    "write_radiance_maps",
-]
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'bayescal' has no attribute '{name}'")
+    enable_numerics()
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return __all__
+
+
+class _Package(types.ModuleType):
+    """The package module: a submodule named like a public function (``fit``, ``simulate``,
+    ``invert``, ``predict``) must not replace that function when the import system binds it."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _LAZY and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
+
+
+if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
+    from .assemble import CalibrationModel, build_model
+    from .batch import FitBatch, fit_many
+    from .calibration import CalibratedRange, Calibration, Setting
+    from .design import Design, Truth, load_design
+    from .diagnostics import Diagnostics
+    from .emva import Steps, load_steps, read_descriptor
+    from .fit import BACKENDS, Fit, fit
+    from .images import invert_image, read_image, write_radiance_maps
+    from .inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit
+    from .invert import Inversion, invert, radiance_draws
+    from .nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves
+    from .photon_transfer import Characterization, characterize, standard_method
+    from .plan import Plan, default_window, plan_exposure
+    from .predict import predict
+    from .sbc import SBCResult, run_sbc
+    from .scene import SceneChoice, choose_for_scene
+    from .simulate import Simulation, simulate
+    from .spec import ModelSpec, load_spec
+    from .table import MeasurementTable, load_table

@@ -1,9 +1,11 @@
-"""Process-wide numerical configuration: float64 and JAX's compilation cache.
+"""Numerical configuration: float64 and JAX's compilation cache.
 
 Calibration residuals are ~1e-4 of the signal, so every inference path runs in
-float64 (DESIGN.md section 5).  JAX compiles each model structure once; the
-persistent cache makes the *first* call in a new process cheap too
-(DESIGN.md section 4).
+float64 (docs/architecture.md, "Numerics").  JAX compiles each model structure
+once; the persistent cache makes the *first* call in a new process cheap too.
+Nothing here runs at ``import bayescal``: :func:`enable_numerics` is called by
+the first use of a computing attribute of the package, by the computing
+subpackages and by the command line.
 """
 
 from __future__ import annotations
@@ -11,13 +13,15 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import jax
+__all__ = ["enable_float64", "enable_compilation_cache", "enable_numerics", "cache_dir"]
 
-__all__ = ["enable_float64", "enable_compilation_cache", "cache_dir"]
+_DONE = False
 
 
 def enable_float64() -> None:
     """Switch JAX to float64 (idempotent)."""
+    import jax
+
     jax.config.update("jax_enable_x64", True)
 
 
@@ -42,7 +46,18 @@ def enable_compilation_cache() -> Path | None:
         path.mkdir(parents=True, exist_ok=True)
     except OSError:
         return None
+    import jax
+
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return path
+
+
+def enable_numerics() -> None:
+    """float64 and the compilation cache, once per process (idempotent, cheap after the first call)."""
+    global _DONE
+    if not _DONE:
+        enable_float64()
+        enable_compilation_cache()
+        _DONE = True

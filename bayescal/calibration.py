@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SpecError, TableError
+from .errors import PosteriorError, SpecError, TableError
 from .spec import ModelSpec, Reference
 
 __all__ = ["Calibration", "Setting", "CalibratedRange"]
@@ -157,12 +157,18 @@ class Calibration:
         path = Path(path)
         if path.is_dir():
             path = path / "posterior.nc"
-        if not path.exists():
-            raise FileNotFoundError(f"no posterior at {path}; run `bayescal fit ... --out DIR` first")
-        dt = az.from_netcdf(path)
+        if not path.is_file():
+            raise PosteriorError(f"no posterior at {path}; run `bayescal fit ... --out DIR` first")
+        try:
+            dt = az.from_netcdf(path)
+        except Exception as exc:  # h5py/xarray raise many types for truncated or foreign files
+            raise PosteriorError(
+                f"{path} is not a readable posterior file ({type(exc).__name__}: {str(exc)[:200]}); "
+                "was it truncated? Re-run `bayescal fit`"
+            ) from None
         attrs = dt.attrs
-        if "spec_toml" not in attrs:
-            raise SpecError(f"{path} was not written by bayescal (no spec_toml attribute)")
+        if "spec_toml" not in attrs or "posterior" not in dt.children or "measurements" not in dt.children:
+            raise PosteriorError(f"{path} was not written by `bayescal fit` (no spec, posterior or measurements)")
         import tomllib
 
         spec = ModelSpec.from_dict(tomllib.loads(attrs["spec_toml"]), source=str(path))

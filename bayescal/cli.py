@@ -8,37 +8,75 @@ FAILED).
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 from pathlib import Path
 
 __all__ = ["main"]
 
-MODELS = Path(__file__).resolve().parent.parent / "models"
-
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``bayescal`` command."""
+    """Entry point of the ``bayescal`` command (exit codes in the module docstring)."""
     parser = _parser()
     args = parser.parse_args(argv)
-    from . import BayescalError, enable_compilation_cache
+    from ._config import enable_numerics
+    from .errors import BayescalError
 
-    enable_compilation_cache()
     try:
+        enable_numerics()
         return args.func(args)
-    except (BayescalError, FileNotFoundError) as exc:
+    except BayescalError as exc:
         print(f"bayescal: error: {exc}", file=sys.stderr)
         return 2
+    except (OSError, UnicodeError) as exc:  # unreadable or unwritable paths, wrong encodings
+        print(f"bayescal: error: {_os_message(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        # staged outputs were removed while the interrupt unwound; chains still running in worker
+        # threads cannot be stopped from Python, so leave without waiting for them
+        print("\nbayescal: interrupted; no output was written or replaced", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+
+
+def _os_message(exc: BaseException) -> str:
+    if isinstance(exc, UnicodeDecodeError):
+        return f"cannot decode the input as {exc.encoding} text ({exc.reason} at byte {exc.start}); save it as UTF-8"
+    if isinstance(exc, OSError) and exc.filename is not None:
+        what = {
+            IsADirectoryError: "is a directory; expected a file",
+            NotADirectoryError: "is not a directory",
+            FileNotFoundError: "no such file or directory",
+            PermissionError: "permission denied",
+        }.get(type(exc), exc.strerror or str(exc))
+        return f"{exc.filename}: {what}"
+    return str(exc)
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="bayescal", description="Bayesian radiometric calibration of imaging sensors")
+    from . import __version__
+
+    p = argparse.ArgumentParser(
+        prog="bayescal",
+        description="Bayesian radiometric calibration of imaging sensors",
+        epilog="exit codes: 0 ok, 2 bad input (names the file, row, column or key), "
+        "3 the fit failed its diagnostics or does not fit its data, 130 interrupted",
+    )
+    p.add_argument("--version", action="version", version=f"bayescal {__version__}")
     sub = p.add_subparsers(required=True, metavar="COMMAND")
     f = sub.add_parser("fit", help="fit a calibration model to a measurement table")
     f.add_argument("data", help="CSV or Parquet measurement table")
     f.add_argument("--model", required=True, help="model spec (TOML), e.g. models/seed000_bayer.toml")
-    f.add_argument("--backend", default="nuts", choices=["nuts", "emcee", "laplace", "lsq"])
+    f.add_argument(
+        "--backend",
+        default="nuts",
+        choices=["nuts", "emcee", "laplace", "lsq"],
+        help="inference backend (default nuts)",
+    )
     f.add_argument("--out", required=True, help="output directory")
-    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     f.add_argument("--quiet", action="store_true", help="no progress bar")
     f.add_argument("--report", action="store_true", help="also write OUT/report.html (+ .json, .md)")
     f.set_defaults(func=_cmd_fit)
@@ -47,9 +85,9 @@ def _parser() -> argparse.ArgumentParser:
     _setting_args(pr, required=True)
     pr.add_argument("--radiance", "--stimulus", dest="stimulus", type=_floats, help="stimulus values (comma list)")
     pr.add_argument("--channel", action="append", help="channel(s) (default all)")
-    pr.add_argument("--n-avg", type=float, default=1.0, help="pixels x frames averaged per reading (default 1)")
+    pr.add_argument("--n-avg", type=_finite, default=1.0, help="pixels x frames averaged per reading (default 1)")
     pr.add_argument("--out", help="also write the table as CSV")
-    pr.add_argument("--seed", type=int, default=0)
+    pr.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     pr.set_defaults(func=_cmd_predict)
     iv = sub.add_parser("invert", help="radiance posterior of DN values or an image (median and 95 %% interval)")
     iv.add_argument("posterior", help="fit directory or its posterior.nc")
@@ -58,39 +96,41 @@ def _parser() -> argparse.ArgumentParser:
     _setting_args(iv, required=False)
     _image_args(iv, channel_help="channel of a single-channel image or of --dn values")
     iv.add_argument("--out", help="output directory (image) or CSV (--dn)")
-    iv.add_argument("--seed", type=int, default=0)
+    iv.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     iv.set_defaults(func=_cmd_invert)
     pl = sub.add_parser("plan", help="choose gain/exposure/TDI so the next frame lands in a DN window")
     pl.add_argument("posterior", help="fit directory or its posterior.nc")
     pl.add_argument("--channel", required=True)
-    pl.add_argument("--dn", type=float, help="reading at the current setting")
-    pl.add_argument("--current", type=_floats, help="current setting: EXPOSURE_S,GAIN[,TDI]")
-    pl.add_argument("--radiance", "--stimulus", dest="stimulus", type=float, help="known scene stimulus instead")
+    pl.add_argument("--dn", type=_finite, help="reading at the current setting")
+    pl.add_argument("--current", type=_setting_values, help="current setting: EXPOSURE_S[,GAIN[,TDI[,TEMPERATURE_C]]]")
+    pl.add_argument("--radiance", "--stimulus", dest="stimulus", type=_finite, help="known scene stimulus instead")
     pl.add_argument("--exposures", type=_floats, required=True, help="allowed exposures, s (comma list)")
     pl.add_argument("--gains", type=_floats, default=[1.0], help="allowed gains (comma list)")
     pl.add_argument("--tdi-stages", type=_floats, default=[1.0], help="allowed TDI stages (comma list)")
     pl.add_argument("--window", type=_floats, help="target DN window LOW,HIGH (default 1080,1920 scaled to bits)")
-    pl.add_argument("--n-avg", type=float, default=1.0)
+    pl.add_argument("--n-avg", type=_finite, default=1.0, help="pixels x frames averaged per reading (default 1)")
     pl.add_argument("--top", type=int, default=5, help="rows to print")
-    pl.add_argument("--seed", type=int, default=0)
+    pl.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     pl.set_defaults(func=_cmd_plan)
     rp = sub.add_parser("report", help="HTML report (figures embedded) + report.json + report.md of a fit")
     rp.add_argument("fit_dir", help="directory written by `bayescal fit`")
     rp.add_argument("--out", help="HTML path (default FIT_DIR/report.html); .json and .md go beside it")
-    rp.add_argument("--seed", type=int, default=0)
+    rp.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     rp.set_defaults(func=_cmd_report)
     ch = sub.add_parser("characterize", help="EMVA 1288: standard estimates beside posteriors (K, R, QE, dark, ...)")
     ch.add_argument("input", help="EMVA 1288 descriptor (.txt) with its images, crop128.npz, or a reduced steps.csv")
     ch.add_argument("--out", required=True, help="output directory")
-    ch.add_argument("--seed", type=int, default=0)
+    ch.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     ch.set_defaults(func=_cmd_characterize)
     se = sub.add_parser("select", help="compare polynomial orders / components by PSIS-LOO (F-test beside it)")
     se.add_argument("data", help="CSV or Parquet measurement table")
     se.add_argument("--model", required=True, help="base model spec (TOML)")
-    se.add_argument("--orders", type=_floats, default=[1, 2, 3], help="orders to compare (default 1,2,3)")
+    se.add_argument("--orders", type=_orders, default=[1, 2, 3], help="response orders 1-4 to compare (default 1,2,3)")
     se.add_argument("--without", default="", help="components to try switching off: level_errors,excess,exposure_slope")
-    se.add_argument("--backend", default="laplace", choices=["nuts", "laplace", "emcee"])
-    se.add_argument("--seed", type=int, default=0)
+    se.add_argument(
+        "--backend", default="laplace", choices=["nuts", "laplace", "emcee"], help="backend (default laplace)"
+    )
+    se.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     se.set_defaults(func=_cmd_select)
     sc = sub.add_parser("scene", help="cheapest calibration whose inversion of an image matches the full model's")
     sc.add_argument("image", help="TIFF, PNG or NPY image (the scene)")
@@ -98,9 +138,9 @@ def _parser() -> argparse.ArgumentParser:
     _setting_args(sc, required=False)
     _image_args(sc, channel_help="channel of a single-channel image")
     sc.add_argument("--full", help="the reference candidate (default: the highest response order)")
-    sc.add_argument("--tol", type=float, default=0.1, help="allowed deviation in posterior sds (default 0.1)")
+    sc.add_argument("--tol", type=_finite, default=0.1, help="allowed deviation in posterior sds (default 0.1)")
     sc.add_argument("--out", help="write the comparison as JSON here")
-    sc.add_argument("--seed", type=int, default=0)
+    sc.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     sc.set_defaults(func=_cmd_scene)
     sb = sub.add_parser("sbc", help="simulation-based calibration of a model over a table's design (rank tests)")
     sb.add_argument("data", help="CSV or Parquet table: its design (settings, levels) is used, not its readings")
@@ -108,35 +148,70 @@ def _parser() -> argparse.ArgumentParser:
     sb.add_argument("--sims", type=int, default=200, help="simulated datasets (default 200)")
     sb.add_argument("--backend", default="nuts", choices=["nuts", "laplace"])
     sb.add_argument("--out", required=True, help="output stem: writes STEM.csv, STEM.md, STEM.png")
-    sb.add_argument("--seed", type=int, default=0)
+    sb.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     sb.set_defaults(func=_cmd_sbc)
     s = sub.add_parser("simulate", help="simulate a measurement table from a design with a [truth] table")
     s.add_argument("--design", required=True, help="design TOML (names its spec, holds [truth])")
     s.add_argument("--model", help="model spec (default: the design's)")
     s.add_argument("--out", required=True, help="CSV to write")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     s.set_defaults(func=_cmd_simulate)
     d = sub.add_parser("demo", help="simulate the seed 000 camera, fit it, compare with least squares")
     d.add_argument("--out", default="demo-out", help="output directory (default demo-out)")
-    d.add_argument("--seed", type=int, default=0)
-    d.add_argument("--backend", default="nuts", choices=["nuts", "emcee", "laplace"])
-    d.add_argument("--quiet", action="store_true")
+    d.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    d.add_argument("--backend", default="nuts", choices=["nuts", "emcee", "laplace"], help="backend (default nuts)")
+    d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=_cmd_demo)
     return p
 
 
+SEED_HELP = "seed of every random number (default 0): the same seed gives the same result"
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
+    return value
+
+
+def _setting_values(text: str) -> list[float]:
+    values = _floats(text)
+    if not 1 <= len(values) <= 4:
+        raise argparse.ArgumentTypeError(
+            f"expected EXPOSURE_S[,GAIN[,TDI[,TEMPERATURE_C]]] (1 to 4 numbers), got {len(values)}: '{text}'"
+        )
+    return values
+
+
+def _orders(text: str) -> list[int]:
+    out = []
+    for v in text.split(","):
+        v = v.strip()
+        if v not in {"1", "2", "3", "4"}:
+            raise argparse.ArgumentTypeError(f"expected response orders among 1,2,3,4 (comma list), got '{v}'")
+        out.append(int(v))
+    return out
+
+
 def _floats(text: str) -> list[float]:
     try:
-        return [float(v) for v in text.split(",") if v.strip()]
+        values = [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got '{text}'") from None
+    if not values or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers, got '{text}'")
+    return values
 
 
 def _setting_args(p: argparse.ArgumentParser, required: bool) -> None:
-    p.add_argument("--exposure-s", type=float, required=required, help="exposure time, s")
-    p.add_argument("--gain", type=float, default=None, help="gain factor (default the reference gain)")
-    p.add_argument("--tdi-stages", type=float, default=None, help="TDI stages (default the reference)")
-    p.add_argument("--temperature-c", type=float, default=None, help="sensor temperature, degC (default reference)")
+    p.add_argument("--exposure-s", type=_finite, required=required, help="exposure time, s")
+    p.add_argument("--gain", type=_finite, default=None, help="gain factor (default the reference gain)")
+    p.add_argument("--tdi-stages", type=_finite, default=None, help="TDI stages (default the reference)")
+    p.add_argument("--temperature-c", type=_finite, default=None, help="sensor temperature, degC (default reference)")
 
 
 def _image_args(p, channel_help: str) -> None:
@@ -144,7 +219,7 @@ def _image_args(p, channel_help: str) -> None:
     p.add_argument("--cfa", help="Bayer pattern of a raw mosaic: RGGB, BGGR, GRBG, GBRG")
     p.add_argument("--channel", help=channel_help)
     p.add_argument("--channels", help="comma list naming the planes of an (H, W, C) image")
-    p.add_argument("--n-avg", type=float, default=1.0, help="pixels x frames averaged per value (default 1)")
+    p.add_argument("--n-avg", type=_finite, default=1.0, help="pixels x frames averaged per value (default 1)")
 
 
 def _setting(args, cal):
@@ -191,7 +266,7 @@ def _cmd_invert(args) -> int:
     from .errors import SpecError
     from .images import invert_image, read_image, write_radiance_maps
     from .invert import invert
-    from .io import write_text_atomic
+    from .io import check_output_dir, write_text_atomic
 
     if (Path(args.posterior) / "film_draws.npz").exists():
         from .film import load_film_fits
@@ -224,6 +299,7 @@ def _cmd_invert(args) -> int:
         return 0
     if not args.out:
         raise SpecError("inverting an image needs --out DIR")
+    check_output_dir(args.out)
     from .progress import progress_bar
 
     image = read_image(args.image)
@@ -246,7 +322,7 @@ def _cmd_invert(args) -> int:
         f"inverted {image.size} pixels of {args.image}: {a['n_saturated']} clipped (lower bound only), "
         f"{a['n_below_dark']} at/below dark (upper bound only), {a['n_extrapolated']} beyond the calibrated range"
     )
-    print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())))
+    print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir() if not p.name.startswith("."))))
     return 0
 
 
@@ -257,7 +333,7 @@ def _cmd_plan(args) -> int:
     from .plan import plan_exposure
 
     cal = Calibration.load(args.posterior)
-    current = Setting(*args.current) if args.current else None
+    current = Setting(*args.current) if args.current else None  # 1-4 values, checked by the parser
     plan = plan_exposure(
         cal,
         args.channel,
@@ -284,12 +360,12 @@ def _cmd_plan(args) -> int:
 
 def _cmd_characterize(args) -> int:
     from .emva import load_steps
-    from .io import staged_directory, write_json_atomic
+    from .io import check_output_dir, staged_directory, write_json_atomic
     from .photon_transfer import characterize, plot_curves
 
+    out = check_output_dir(args.out)
     res = characterize(load_steps(args.input), seed=args.seed)
-    out = Path(args.out)
-    with staged_directory(out) as stage:
+    with staged_directory(out, kind="characterization") as stage:
         res.table.to_csv(stage("characterization.csv"), index=False, float_format="%.8g")
         write_json_atomic(stage("characterization.json"), res.to_dict())
         res.curves.to_csv(stage("curves.csv"), index=False, float_format="%.8g")
@@ -298,7 +374,7 @@ def _cmd_characterize(args) -> int:
     print(res.table.to_string(index=False, float_format="%.5g"))
     verdict = "compatible" if res.dark_current_compatible else "NOT compatible"
     print(f"dark current from the mean and from the variance: {verdict} (95 % interval of their difference)")
-    print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())))
+    print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir() if not p.name.startswith("."))))
     return 0
 
 
@@ -388,7 +464,7 @@ def _is_film(path) -> bool:
 
     try:
         return tomllib.loads(Path(path).read_text()).get("kind") == "film"
-    except (OSError, tomllib.TOMLDecodeError):
+    except (OSError, UnicodeError, tomllib.TOMLDecodeError):  # load_spec says what is wrong
         return False
 
 
@@ -414,16 +490,20 @@ def _cmd_fit_film(args) -> int:
 
 def _cmd_fit(args) -> int:
     from . import load_spec, load_table
+    from .io import check_output_dir
 
     if _is_film(args.model):
         return _cmd_fit_film(args)
 
+    check_output_dir(args.out)
     table = load_table(args.data)
     spec = load_spec(args.model)
     return _run_fit(table, spec, args.backend, args.seed, Path(args.out), args.quiet, report=args.report)
 
 
-def _run_fit(table, spec, backend, seed, out: Path, quiet: bool, report: bool = False) -> int:
+def _run_fit(
+    table, spec, backend, seed, out: Path, quiet: bool, report: bool = False, measurements: bool = False
+) -> int:
     import warnings
 
     from . import FitFailedWarning, fit
@@ -439,13 +519,13 @@ def _run_fit(table, spec, backend, seed, out: Path, quiet: bool, report: bool = 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FitFailedWarning)  # reported below, loudly
             result = fit(table, spec, backend, seed=seed, progress=tick)
-    result.save(out)
+    result.save(out, measurements=measurements)
     print(render_summary(result))
     if report and result.posterior is not None:
         from .report import write_report
 
         write_report(out, seed=seed)
-    print(f"\nwrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())))
+    print(f"\nwrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir() if not p.name.startswith("."))))
     if not result.ok:
         bar = "!" * 72
         print(f"\n{bar}\nFIT FAILED: {result.diagnostics.verdict}\nDo not use these numbers.\n{bar}", file=sys.stderr)
@@ -469,19 +549,19 @@ def _cmd_simulate(args) -> int:
 
 def _cmd_demo(args) -> int:
     from . import load_design, load_spec, simulate
+    from ._resources import models_dir
+    from .io import check_output_dir
 
-    design = load_design(MODELS / "seed000_design.toml")
+    design = load_design(models_dir() / "seed000_design.toml")
     spec = load_spec(design.spec)
+    out = check_output_dir(args.out)
     sim = simulate(spec, design, seed=args.seed)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    sim.table.write_csv(out / "measurements.csv")
     print(f"Simulated the seed 000 Bayer CCD: {len(sim.table)} rows, sphere scale error {sim.sphere_scale - 1:+.2%}")
     print(
         "True gains (DN per W m^-2 sr^-1 at gain 1, 1/250 s): "
         + ", ".join(f"{c} {v[0]:g}" for c, v in sim.truth.response.items())
     )
-    return _run_fit(sim.table, spec, args.backend, args.seed, out, args.quiet, report=True)
+    return _run_fit(sim.table, spec, args.backend, args.seed, out, args.quiet, report=True, measurements=True)
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
+from ._config import enable_numerics
 from .errors import TableError
 from .spec import ModelSpec
 from .table import MeasurementTable
@@ -80,6 +81,7 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
         reference gain was never measured (per-setting dark), or if the noise
         model needs a column the table lacks.
     """
+    enable_numerics()  # the arrays below are float64
     df = table.frame
     if table.stimulus != spec.stimulus:
         raise TableError(
@@ -180,6 +182,14 @@ def _check_levels_per_channel(df, dark: np.ndarray, saturated: np.ndarray, x: np
                 f"every illuminated point of channel '{channel}' is saturated (>= full scale); "
                 "nothing constrains its gain",
                 row=row,
+                column="dn_mean",
+            )
+        readings = df["dn_mean"].to_numpy()[mine & ~saturated]
+        if readings.size > 1 and np.ptp(readings) == 0:
+            raise TableError(
+                f"every unsaturated illuminated reading of channel '{channel}' is {readings[0]:g} DN: "
+                "the channel does not respond to the stimulus (check the file or the camera)",
+                row=int(np.flatnonzero(mine)[0]) + 1,
                 column="dn_mean",
             )
         distinct = np.unique(np.round(x[mine & ~saturated], 12)).size

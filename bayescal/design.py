@@ -8,6 +8,7 @@ how many frames and pixels are averaged per row (seed 000: 20 frames).  The
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import os
 import tomllib
@@ -16,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import SpecError
+from .spec import check_keys
 
 __all__ = ["Design", "Block", "Truth", "load_design"]
 
@@ -108,9 +110,10 @@ class Design:
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "<design>") -> Design:
         """Parse the TOML layout (see ``models/seed000_design.toml``)."""
+        check_keys(d, {f.name for f in dataclasses.fields(cls)}, source)
         try:
-            blocks = tuple(_block(b) for b in d["illuminated"])
-            dark = tuple(_block(b) for b in d.get("dark", []))
+            blocks = tuple(_block(b, source, f"illuminated[{i}].") for i, b in enumerate(d["illuminated"]))
+            dark = tuple(_block(b, source, f"dark[{i}].") for i, b in enumerate(d.get("dark", [])))
             truth = Truth.from_dict(d["truth"], source) if "truth" in d else None
             design = cls(
                 channels=tuple(d["channels"]),
@@ -124,6 +127,10 @@ class Design:
             )
         except KeyError as exc:
             raise SpecError(f"{source}: missing design key {exc}") from exc
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise SpecError(f"{source}: malformed design: {exc}") from None
+        if design.n_frames < 1 or design.n_pixels < 1:
+            raise SpecError(f"{source}: n_frames and n_pixels must be >= 1")
         for block in design.illuminated:
             for i in block.levels or ():
                 if not 0 <= i < len(design.levels):
@@ -131,7 +138,11 @@ class Design:
         return design
 
 
-def _block(b: dict[str, Any]) -> Block:
+def _block(b: dict[str, Any], source: str, prefix: str) -> Block:
+    if not isinstance(b, dict):
+        raise SpecError(f"{source}: [{prefix.rstrip('.')}] must be a table")
+    check_keys(b, {"exposure_s", "gain", "tdi_stages", "levels", "temperature_c"}, source, prefix)
+
     def floats(key: str, default: tuple[float, ...]) -> tuple[float, ...]:
         v = b.get(key, default)
         return tuple(float(x) for x in (v if isinstance(v, (list, tuple)) else [v]))
@@ -148,11 +159,11 @@ def _block(b: dict[str, Any]) -> Block:
 
 def load_design(path: str | os.PathLike) -> Design:
     """Load a :class:`Design` (with optional truth) from TOML."""
+    from .io import read_text
+
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise SpecError(f"no such design: {path}") from exc
+        data = tomllib.loads(read_text(path, SpecError, "design (TOML)"))
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{path}: invalid TOML: {exc}") from exc
     design = Design.from_dict(data, source=str(path))

@@ -150,8 +150,8 @@ def read_descriptor(path: str | os.PathLike, progress: Callable[[int], None] | N
 def load_steps(path: str | os.PathLike) -> Steps:
     """Load a descriptor (``.txt``), the cropped arrays (``.npz``) or a reduced table (``.csv``)."""
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no such EMVA 1288 input: {path}")
+    if not path.is_file():
+        raise TableError(f"no such EMVA 1288 input: {path}" if not path.exists() else f"{path} is not a file")
     suffix = path.suffix.lower()
     if suffix == ".npz":
         return _from_npz(path)
@@ -160,8 +160,19 @@ def load_steps(path: str | os.PathLike) -> Steps:
     return read_descriptor(path)
 
 
+_NPZ_KEYS = ("bits", "bright_texp", "bright_photons", "bright_pairs", "dark_texp", "dark_pairs")
+
+
 def _from_npz(path: Path) -> Steps:
-    d = np.load(path)
+    try:
+        d = np.load(path)
+    except (OSError, ValueError, EOFError) as exc:
+        raise TableError(f"{path} is not a readable .npz archive ({exc})") from None
+    missing = [k for k in _NPZ_KEYS if k not in d]
+    if missing:
+        raise TableError(
+            f"{path}: missing array(s) {missing}; expected the keys of crop128.npz ({', '.join(_NPZ_KEYS)})"
+        )
     bits = int(d["bits"])
     sat = 2**bits - 1
     rows = []
@@ -179,12 +190,40 @@ def _from_npz(path: Path) -> Steps:
     return _steps(rows, stacks, bits, str(path))
 
 
+_CSV_NUMERIC = ("texp_ns", "photons_per_pixel", "mean_DN", "var_temporal_DN2")
+
+
 def _from_csv(path: Path) -> Steps:
-    df = pd.read_csv(path)
-    need = {"kind", "texp_ns", "photons_per_pixel", "mean_DN", "var_temporal_DN2"}
+    import io
+
+    from .io import read_text
+
+    try:
+        df = pd.read_csv(io.StringIO(read_text(path, TableError, "EMVA 1288 steps table (CSV)")), comment="#")
+    except (pd.errors.EmptyDataError, pd.errors.ParserError) as exc:
+        raise TableError(f"{path} is empty or not a CSV table ({exc}); expected a reduced steps.csv") from None
+    need = {"kind", *_CSV_NUMERIC}
     missing = need - set(df.columns)
     if missing:
-        raise TableError(f"{path}: missing column(s) {sorted(missing)}", column=sorted(missing)[0])
+        raise TableError(
+            f"{path}: missing column(s) {sorted(missing)}; expected a reduced EMVA 1288 steps table with "
+            f"columns kind, texp_ns, photons_per_pixel, n_images, mean_DN, var_temporal_DN2",
+            column=sorted(missing)[0],
+        )
+    if len(df) == 0:
+        raise TableError(f"{path} has no data rows")
+    for i, kind in enumerate(df["kind"]):
+        if kind not in ("bright", "dark"):
+            raise TableError(f"{path}: kind '{kind}'; expected 'bright' or 'dark'", row=i + 1, column="kind")
+    for col in _CSV_NUMERIC + (("n_images",) if "n_images" in df else ()):
+        values = pd.to_numeric(df[col], errors="coerce")
+        bad = np.flatnonzero(~np.isfinite(values.to_numpy(dtype=float)))
+        if bad.size:
+            raise TableError(f"{path}: '{df[col].iloc[bad[0]]}' is not a finite number", row=bad[0] + 1, column=col)
+        if col != "photons_per_pixel" and np.any(values < 0):
+            row = int(np.flatnonzero(values < 0)[0]) + 1
+            raise TableError(f"{path}: negative value; expected >= 0", row=row, column=col)
+        df[col] = values
     pairs = df[df["n_images"] == 2] if "n_images" in df else df
     rows = [
         {

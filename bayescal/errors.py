@@ -6,7 +6,15 @@ so that a calibration scientist can fix the CSV without reading code.
 
 from __future__ import annotations
 
-__all__ = ["BayescalError", "TableError", "SpecError", "FitFailedError", "FitFailedWarning"]
+__all__ = [
+    "BayescalError",
+    "TableError",
+    "SpecError",
+    "OutputError",
+    "PosteriorError",
+    "FitFailedError",
+    "FitFailedWarning",
+]
 
 
 class BayescalError(Exception):
@@ -39,6 +47,14 @@ class TableError(BayescalError, ValueError):
 
 class SpecError(BayescalError, ValueError):
     """A model specification or design is malformed (names the key at fault)."""
+
+
+class OutputError(BayescalError, ValueError):
+    """An output path cannot be written, or holds files bayescal must not replace."""
+
+
+class PosteriorError(BayescalError, ValueError):
+    """A fit directory or ``posterior.nc`` is missing, unreadable or not written by bayescal."""
 
 
 class FitFailedError(BayescalError, RuntimeError):

@@ -38,7 +38,6 @@ import numpy as np
 import numpyro
 import numpyro.distributions as dist
 import pandas as pd
-from numpyro.infer import MCMC, NUTS
 
 from .errors import SpecError, TableError
 
@@ -188,10 +187,12 @@ def _inputs(spec: FilmSpec, band: FilmBand) -> jnp.ndarray:
 
 
 @lru_cache(maxsize=16)
-def _sampler(toe_shoulder: bool, reference_step: int, warmup: int, draws: int, chains: int) -> MCMC:
-    """One MCMC object per model structure: data and inputs are arguments, so it compiles once."""
+def _film_model(toe_shoulder: bool, reference_step: int):
+    """The numpyro model of one structure; data ``(inputs, wedge, current, density)`` are its argument,
+    so one compiled program (:func:`bayescal.inference.program.program_of`) serves every band."""
 
-    def model(inputs, wedge, current, density=None):
+    def model(data):
+        inputs, wedge, current, density = data
         a0, b0, t0, r0, ua, ub, ut, ur, uw, dsd = (inputs[i] for i in range(10))
         alpha = numpyro.sample("alpha", dist.LogNormal(jnp.log(a0), ua))
         beta = numpyro.sample("beta", dist.LogNormal(jnp.log(b0), ub))
@@ -215,16 +216,7 @@ def _sampler(toe_shoulder: bool, reference_step: int, warmup: int, draws: int, c
             mean = _curve(jnp.log10(l_steps), gamma, d0)
         numpyro.sample("D", dist.Normal(mean, sd), obs=density)
 
-    kernel = NUTS(model, target_accept_prob=0.9)
-    return MCMC(
-        kernel,
-        num_warmup=warmup,
-        num_samples=draws,
-        num_chains=chains,
-        chain_method="sequential",
-        progress_bar=False,
-        jit_model_args=True,
-    )
+    return model
 
 
 @dataclass(frozen=True)
@@ -273,14 +265,28 @@ def fit_film(spec: FilmSpec, band: str, current: float, density: np.ndarray, see
         raise TableError(f"band {band}: {density.size} wedge densities, expected {len(spec.wedge)}", column="density")
     if not np.all(np.isfinite(density)):
         raise TableError(f"band {band}: a wedge density is not a number", column="density")
-    mcmc = _sampler(spec.toe_shoulder, spec.reference_step, spec.warmup, spec.draws, spec.chains)
-    mcmc.run(jax.random.PRNGKey(seed), _inputs(spec, b), jnp.asarray(spec.wedge), float(current), jnp.asarray(density))
-    samples = {k: np.asarray(v) for k, v in mcmc.get_samples(group_by_chain=False).items()}
-    grouped = mcmc.get_samples(group_by_chain=True)
+    from .inference.laplace import laplace
+    from .inference.nuts import run_nuts
+    from .inference.program import program_of
+    from .spec import InferenceSpec
+
+    data = (_inputs(spec, b), jnp.asarray(spec.wedge), jnp.asarray(float(current)), jnp.asarray(density))
+    program = program_of(_film_model(spec.toe_shoulder, spec.reference_step), data, obs="D")
+    start = laplace(program, data)
+    settings = InferenceSpec(chains=spec.chains, draws=spec.draws, warmup=spec.warmup, target_accept=0.9)
+    out = run_nuts(program, data, start.mode, start.cov, settings, seed)
+    chains, draws, dim = out.z.shape
+    sites = program.constrain(out.z.reshape(-1, dim), data)
+    samples = {k: np.asarray(v) for k, v in sites.items() if k != "D"}
     import arviz as az
 
-    div = int(np.asarray(mcmc.get_extra_fields()["diverging"]).sum())
-    rhat = float(np.nanmax([np.nanmax(np.asarray(az.rhat(np.asarray(grouped[k])))) for k in ("gamma", "D0")]))
+    div = int(np.asarray(out.diverging).sum())
+    rhat = float(
+        max(
+            np.nanmax(np.asarray(az.rhat(samples[k].reshape((chains, draws) + samples[k].shape[1:]))))
+            for k in ("gamma", "D0")
+        )
+    )
     diagnostics = {"divergences": div, "max_rhat_curve": rhat, "ok": div == 0 and rhat <= 1.01}
     return FilmFit(band, samples, spec, diagnostics)
 

@@ -186,10 +186,14 @@ class Fit:
             "lsq": _records(self.lsq),
         }
 
-    def save(self, out_dir: str | os.PathLike) -> Path:
-        """Write ``posterior.nc``, ``summary.csv``, ``summary.json`` and ``lsq.csv`` atomically."""
+    def save(self, out_dir: str | os.PathLike, *, measurements: bool = False) -> Path:
+        """Write ``posterior.nc``, ``summary.csv``, ``summary.json`` and ``lsq.csv`` (and, with
+        ``measurements``, the table as ``measurements.csv``) as one new directory that replaces
+        ``out_dir`` whole (see :func:`bayescal.io.staged_directory`)."""
         out_dir = Path(out_dir)
-        with staged_directory(out_dir) as stage:
+        with staged_directory(out_dir, kind="fit") as stage:
+            if measurements:
+                self.model.table.write_csv(stage("measurements.csv"))
             if self.posterior is not None:
                 self.posterior.to_netcdf(stage("posterior.nc"), engine="h5netcdf")
                 self.summary.to_csv(stage("summary.csv"), index_label="parameter", float_format="%.8g")
@@ -230,7 +234,17 @@ def fit(
     lsq = lsq_baseline(table, orders=range(1, spec.response.order + 1), full_scale=spec.full_scale)
     timings = {"prepare": time.perf_counter() - t0}
     if backend == "lsq":
-        diag = Diagnostics(True, (), extra={"note": "least squares: no posterior"})
+        fitted = set(lsq["channel"]) if len(lsq) else set()
+        missing = [c for c in model.layout.channels if c not in fitted]
+        problems = (
+            (
+                f"least squares fitted nothing for channel(s) {', '.join(missing)}: no exposure/gain/TDI setting "
+                f"has {spec.response.order + 2} or more distinct unsaturated levels",
+            )
+            if missing
+            else ()
+        )
+        diag = Diagnostics(not problems, problems, extra={"note": "least squares: no posterior"})
         return Fit(model, backend, seed, None, diag, lsq, timings)
     program = program_for(model)
     t1 = time.perf_counter()

@@ -1,16 +1,62 @@
-"""Atomic file output: a failed run never leaves a half-written file."""
+"""Atomic file output: a failed run never leaves a half-written file, and an output
+directory is replaced as a whole, so files of two runs are never mixed."""
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "staged_directory"]
+__all__ = [
+    "read_text",
+    "atomic_path",
+    "write_text_atomic",
+    "write_json_atomic",
+    "staged_directory",
+    "check_output_dir",
+    "MARKER",
+]
+
+#: written into every output directory bayescal makes; a directory with it may be replaced by a later run
+MARKER = ".bayescal-output"
+#: files that identify a directory written by an earlier bayescal version (before the marker)
+_KNOWN = ("summary.json", "characterization.json", "radiance.nc", "film_summary.json")
+
+
+def read_text(path: str | os.PathLike, error: type[Exception], what: str = "file") -> str:
+    """Read a text input (CSV, TOML), saying clearly what is wrong when it cannot be read.
+
+    UTF-8 (with or without a byte-order mark) and UTF-16 with a byte-order
+    mark are accepted; anything else, a directory, a missing or unreadable
+    path raise ``error`` naming the file (and the line of an undecodable byte).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise error(f"no such {what}: {path}")
+    if path.is_dir():
+        raise error(f"{path} is a directory; expected a {what}")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise error(f"cannot read {path}: {exc.strerror or exc}") from exc
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        try:
+            return raw.decode("utf-16")
+        except UnicodeDecodeError:
+            pass
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise error(
+            f"{path}: line {line} is not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); "
+            f"expected a UTF-8 {what} (re-save it as UTF-8)"
+        ) from None
 
 
 @contextmanager
@@ -68,29 +114,65 @@ def _jsonable(obj: Any) -> Any:
     return obj
 
 
+def check_output_dir(out_dir: str | os.PathLike) -> Path:
+    """Refuse an output directory before any work is done, unless bayescal may replace it.
+
+    ``out_dir`` may be missing, an empty directory, or a directory that an
+    earlier bayescal run wrote (it holds the :data:`MARKER` file).  Anything
+    else (a file, a directory of someone else's files) raises
+    :class:`~bayescal.errors.OutputError`.
+    """
+    from .errors import OutputError
+
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"{out_dir} is a file; expected a directory for the outputs (give another --out)")
+    if out_dir.is_dir():
+        names = {p.name for p in out_dir.iterdir()}
+        if names and MARKER not in names and not names.intersection(_KNOWN):
+            raise OutputError(
+                f"{out_dir} is a non-empty directory that bayescal did not write; refusing to replace it "
+                "(give a new or empty --out directory)"
+            )
+    parent = out_dir.absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise OutputError(f"cannot create {out_dir}: {parent} is not a writable directory")
+    return out_dir
+
+
 @contextmanager
-def staged_directory(out_dir: str | os.PathLike) -> Iterator[Callable[[str], Path]]:
-    """Stage several outputs, then move them all into ``out_dir`` only on success.
+def staged_directory(out_dir: str | os.PathLike, kind: str = "output") -> Iterator[Callable[[str], Path]]:
+    """Stage a directory of outputs, then put it in place of ``out_dir`` as a whole, only on success.
 
     Yields ``stage(name) -> Path``: a path to write ``name`` to.  If the block
-    raises, nothing in ``out_dir`` is created or replaced.
+    raises, ``out_dir`` is left exactly as it was; on success it holds only
+    this run's files (an earlier bayescal output there is replaced, never
+    mixed with the new one; see :func:`check_output_dir`).
     """
-    out_dir = Path(out_dir)
+    out_dir = check_output_dir(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.staging.", dir=out_dir.parent))
-    names: list[str] = []
 
     def stage(name: str) -> Path:
-        names.append(name)
-        return staging / name
+        path = staging / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return path
 
     try:
         yield stage
-        out_dir.mkdir(parents=True, exist_ok=True)
-        for name in names:
-            if (staging / name).exists():
-                os.replace(staging / name, out_dir / name)
+        from . import __version__
+
+        (staging / MARKER).write_text(json.dumps({"kind": kind, "bayescal_version": __version__}) + "\n")
+        os.chmod(staging, 0o777 & ~_umask())
+        old = None
+        if out_dir.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old.", dir=out_dir.parent))
+            os.replace(out_dir, old / "d")
+        os.replace(staging, out_dir)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
     finally:
-        for child in staging.iterdir():
-            child.unlink()
-        staging.rmdir()
+        if staging.exists():
+            shutil.rmtree(staging, ignore_errors=True)

@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import Calibration, Setting
+from .errors import PosteriorError
 from .invert import invert, radiance_draws
 from .io import write_json_atomic, write_text_atomic
 from .predict import predict
@@ -83,7 +84,14 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
     matplotlib.use("Agg")
     fit_dir = Path(fit_dir)
     out = Path(out) if out is not None else fit_dir / "report.html"
-    summary = json.loads((fit_dir / "summary.json").read_text())
+    try:
+        summary = json.loads((fit_dir / "summary.json").read_text())
+        summary["diagnostics"]["verdict"], summary["lsq"]  # noqa: B018 - the keys the report reads
+    except (OSError, UnicodeError, ValueError, KeyError, TypeError) as exc:
+        raise PosteriorError(
+            f"{fit_dir / 'summary.json'} is missing or not a bayescal summary ({type(exc).__name__}: {exc}); "
+            "re-run `bayescal fit`"
+        ) from None
     cal = Calibration.load(fit_dir)
     import arviz as az
 

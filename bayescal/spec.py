@@ -31,6 +31,7 @@ __all__ = [
     "SaturationSpec",
     "InferenceSpec",
     "load_spec",
+    "check_keys",
 ]
 
 
@@ -269,27 +270,39 @@ class ModelSpec:
 
 def load_spec(path: str | os.PathLike) -> ModelSpec:
     """Load a :class:`ModelSpec` from a TOML file (see ``models/*.toml``)."""
+    from .io import read_text
+
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise SpecError(f"no such model spec: {path}") from exc
+        data = tomllib.loads(read_text(path, SpecError, "model spec (TOML)"))
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{path}: invalid TOML: {exc}") from exc
     data.pop("kind", None)
     return ModelSpec.from_dict(data, source=str(path))
 
 
+def check_keys(data: dict[str, Any], known: set[str], source: str, prefix: str = "") -> None:
+    """Reject keys a spec or design section does not define (a typo must not pass silently).
+
+    Names the file, the misspelt key(s) and, where one is close, the key meant.
+    """
+    import difflib
+
+    unknown = sorted(set(data) - known)
+    if not unknown:
+        return
+    hints = []
+    for k in unknown:
+        close = difflib.get_close_matches(k, known, n=1)
+        hints.append(f"{prefix}{k}" + (f" (did you mean '{prefix}{close[0]}'?)" if close else ""))
+    raise SpecError(f"{source}: unknown key(s) {', '.join(hints)}; expected one of {sorted(known)}")
+
+
 def _build(cls: type, data: dict[str, Any], source: str, prefix: str) -> Any:
     if not isinstance(data, dict):
         raise SpecError(f"{source}: [{prefix.rstrip('.')}] must be a table")
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = set(data) - names
-    if unknown:
-        raise SpecError(
-            f"{source}: unknown key(s) {sorted(prefix + k for k in unknown)}; expected one of {sorted(names)}"
-        )
+    check_keys(data, {f.name for f in dataclasses.fields(cls)}, source, prefix)
     kwargs = {}
     for f in dataclasses.fields(cls):
         if f.name not in data:
@@ -352,6 +365,13 @@ def _check_spec(spec: ModelSpec) -> None:
         (spec.dark.offset_prior_sd > 0, "dark.offset_prior_sd must be > 0"),
         (spec.dark.slope_prior_sd > 0, "dark.slope_prior_sd must be > 0"),
         (spec.inference.chains >= 1 and spec.inference.draws >= 10, "inference needs chains >= 1 and draws >= 10"),
+        (spec.inference.warmup >= 10, f"inference.warmup = {spec.inference.warmup}; expected >= 10"),
+        (1 <= spec.inference.max_tree_depth <= 15, "inference.max_tree_depth must be in 1..15"),
+        (spec.inference.laplace_draws >= 10, "inference.laplace_draws must be >= 10"),
+        (spec.inference.emcee_walkers >= 0, "inference.emcee_walkers must be >= 0 (0: automatic)"),
+        (spec.inference.emcee_steps >= 10 and spec.inference.emcee_burn >= 0, "inference.emcee_steps >= 10, burn >= 0"),
+        (spec.inference.max_rhat > 1.0, "inference.max_rhat must be > 1"),
+        (spec.inference.min_ess > 0, "inference.min_ess must be > 0"),
         (0 < spec.inference.target_accept < 1, "inference.target_accept must be in (0, 1)"),
         (0 <= spec.inference.retry_target_accept < 1, "inference.retry_target_accept must be in [0, 1)"),
     ]

@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import TableError
-from .io import atomic_path
+from .io import atomic_path, read_text
 
 __all__ = ["MeasurementTable", "load_table", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
@@ -109,17 +109,25 @@ def load_table(path: str | os.PathLike) -> MeasurementTable:
     TableError
         Naming the row and column of the first problem found.
     """
+    import io
+
     path = Path(path)
-    if not path.exists():
-        raise TableError(f"no such file: {path}")
     suffix = path.suffix.lower()
     if suffix == ".parquet":
-        df = pd.read_parquet(path)
-    elif suffix in (".csv", ".txt"):
+        if not path.is_file():
+            raise TableError(f"no such file: {path}" if not path.exists() else f"{path} is not a file")
         try:
-            df = pd.read_csv(path, dtype=str, skipinitialspace=True, comment="#")
+            df = pd.read_parquet(path)
+        except Exception as exc:  # pyarrow raises its own types for every kind of corrupt file
+            raise TableError(f"{path} is not a readable Parquet file ({type(exc).__name__}: {exc})") from None
+    elif suffix in (".csv", ".txt"):
+        text = read_text(path, TableError, "measurement table (CSV)")
+        try:
+            df = pd.read_csv(io.StringIO(text), dtype=str, skipinitialspace=True, comment="#")
         except pd.errors.EmptyDataError as exc:
             raise TableError(f"{path} is empty; expected a header row and data rows") from exc
+        except pd.errors.ParserError as exc:
+            raise TableError(f"{path} is not a well-formed CSV table: {exc}") from None
     else:
         raise TableError(f"{path}: expected a .csv or .parquet file, got '{suffix}'")
     return MeasurementTable.from_frame(df, source=str(path))
@@ -200,6 +208,14 @@ def _check_ranges(out: pd.DataFrame, stimulus: str) -> None:
                     row=bad[0] + 1,
                     column=col,
                 )
+    bad = np.flatnonzero(out["dn_mean"].to_numpy() < 0)
+    if bad.size:
+        raise TableError(
+            f"{out['dn_mean'].iloc[bad[0]]:g} is negative; expected the camera's raw mean output in DN (>= 0), "
+            "not dark-subtracted values (dark rows are part of the table)",
+            row=bad[0] + 1,
+            column="dn_mean",
+        )
     if "dn_var" in out:
         bad = np.flatnonzero(out["dn_var"].to_numpy() <= 0)
         if bad.size:
@@ -212,7 +228,7 @@ def _check_ranges(out: pd.DataFrame, stimulus: str) -> None:
 
 
 def _levels(df: pd.DataFrame, out: pd.DataFrame) -> pd.Series:
-    """Sphere level ids: given, or one per distinct stimulus value; dark rows -> 'dark'."""
+    """Sphere level ids: given, or one per distinct stimulus value; unlabelled dark rows -> 'dark'."""
     dark = out["stimulus"].to_numpy() == 0
     if "level" in df.columns:
         ids = df["level"].astype("string").str.strip()
@@ -232,8 +248,9 @@ def _levels(df: pd.DataFrame, out: pd.DataFrame) -> pd.Series:
                     row=row,
                     column="level",
                 )
-    else:
-        ids = out["stimulus"].map(lambda v: f"L{v:.10g}")
+        # dark rows keep the user's labels (two dark frames of one setting may be 'dark0' and 'dark1')
+        return ids.where(~dark | (ids != ""), "dark")
+    ids = out["stimulus"].map(lambda v: f"L{v:.10g}")
     return ids.where(~dark, "dark")
 
 

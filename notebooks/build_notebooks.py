@@ -130,7 +130,7 @@ from pathlib import Path
 import json
 import bayescal as bc
 
-DATA = Path.cwd().parent.parent / "shared" / "data" / "emva1288" / "refset001_ccd_12bit"
+DATA = Path.cwd().parent / "tests" / "data" / "emva1288" / "refset001_ccd_12bit"
 steps = bc.load_steps(DATA / "steps.csv")          # reduction of the full 640 x 480 images
 res = bc.characterize(steps, seed=0)
 res.table"""),

@@ -12,9 +12,9 @@ from bayescal.emva import load_steps, read_descriptor, reduce_pair, reduce_stack
 from bayescal.errors import TableError
 from bayescal.photon_transfer import characterize
 
-from .conftest import SHARED
+from .conftest import DATA
 
-REF = SHARED / "emva1288" / "refset001_ccd_12bit"
+REF = DATA / "emva1288" / "refset001_ccd_12bit"
 
 
 @pytest.fixture(scope="module")

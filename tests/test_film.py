@@ -28,11 +28,12 @@ def test_table1_ir_follows_eq3_visible_do_not():
     assert round(t.loc["R", "L_star_eq3"], 2) == t.loc["B", "L_star_printed"]
 
 
-def test_coverage_on_simulated_film(spec):
+def _film_coverage(spec, n: int) -> dict[str, int]:
+    """Hits of the 95 % intervals of gamma, D0 and an inverted radiance over ``n`` simulated bands."""
     fast = dataclasses.replace(spec, draws=500, warmup=300, chains=4)
-    hits = {"gamma": [], "D0": [], "radiance": []}
+    hits = {"gamma": 0, "D0": 0, "radiance": 0}
     rng = np.random.default_rng(0)
-    for seed in range(40):
+    for seed in range(n):
         band = ("B", "G", "R", "IR")[seed % 4]
         gamma, d0 = rng.uniform(0.8, 1.6), rng.uniform(0.8, 1.8)
         current = {"B": 12.0, "G": 15.0, "R": 10.0, "IR": 150.0}[band]
@@ -41,15 +42,19 @@ def test_coverage_on_simulated_film(spec):
         assert fit.diagnostics["ok"], fit.diagnostics
         for k, v in (("gamma", gamma), ("D0", d0)):
             lo, hi = np.quantile(fit.draws[k], [0.025, 0.975])
-            hits[k].append(lo <= v <= hi)
+            hits[k] += bool(lo <= v <= hi)
         target = truth["L_steps"][rng.integers(2, 8)] * rng.uniform(0.8, 1.25)  # a ground target in the wedge range
         d_target = d0 + gamma * np.log10(target) + 0.02 * rng.standard_normal()
         inv = fit.invert([d_target]).iloc[0]
-        hits["radiance"].append(inv.lower <= target <= inv.upper)
-    rates = {k: float(np.mean(v)) for k, v in hits.items()}
-    print("\nfilm 95 % coverage over 40 simulated bands:", rates)
-    for k, r in rates.items():  # nominal 0.95; 40 trials: binomial sd 0.034
-        assert r >= 0.85, (k, rates)
+        hits["radiance"] += bool(inv.lower <= target <= inv.upper)
+    print(f"\nfilm 95 % coverage over {n} simulated bands:", {k: v / n for k, v in hits.items()})
+    return hits
+
+
+def test_coverage_on_simulated_film(spec):
+    """40 bands (binomial sd 0.034 at 0.95): every coverage >= 0.85 (measured 0.975, 0.975, 1.0)."""
+    hits = _film_coverage(spec, 40)
+    assert all(h >= 34 for h in hits.values()), hits
 
 
 def test_uncertainty_budget(spec):

@@ -141,15 +141,17 @@ def test_outlier_frame_is_named(seed000):
 
 
 def test_divergences_are_retried_with_smaller_steps():
-    """A near-dark 8-bit dataset whose excess-scatter scale sits near zero: NUTS at target_accept 0.8
-    diverges (7 transitions; 8 of 200 such datasets did) and the fit fails loudly if retrying is off;
-    by default the chains are rerun at 0.95, pass, and the retry is recorded."""
+    """Steps far too large for the posterior's curvature (target_accept 0.2 on a near-dark 8-bit
+    dataset, whose excess-scatter scale sits near zero) give divergent transitions on any platform
+    (1580-2180 of 4000 measured over three datasets); with retrying off the fit fails loudly naming
+    them, and by default the chains are rerun at target_accept 0.95, pass, and the retry is recorded."""
     spec, design = _eight_bit(common_rel=0.03)
+    spec = spec.replace(inference={"target_accept": 0.2})
     table = bc.simulate(spec, design, seed=25_005).table
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", bc.FitFailedWarning)
         once = bc.fit(table, spec.replace(inference={"retry_target_accept": 0.0}), "nuts", seed=5)
-    assert not once.ok and "divergent" in once.diagnostics.verdict
+    assert not once.ok and "divergent" in once.diagnostics.verdict and once.diagnostics.divergences > 100
     fit = bc.fit(table, spec, "nuts", seed=5)
     assert fit.ok and fit.diagnostics.divergences == 0
     assert fit.diagnostics.extra["retried"].startswith(f"{once.diagnostics.divergences} divergent transitions")

@@ -10,7 +10,8 @@ import pytest
 
 import bayescal as bc
 
-N_CAL = 160
+#: calibrations in the default run; the slow suite uses 160 (README numbers)
+N_CAL = 80
 VALUES_PER_CAL = 5
 EXPOSURES = [0.001, 0.002, 0.004, 0.008, 0.016]
 
@@ -64,8 +65,9 @@ def test_inversion_coverage_is_nominal(trials):
         f"bayescal {cover:.3f} (median relative width {np.median(trials['width']):.3f}); "
         f"least-squares plug-in {lsq_cover:.3f} (median relative width {np.median(trials['lsq_width']):.3f})"
     )
-    assert trials["hit"].size >= 400
-    assert 0.93 <= cover <= 0.97
+    # 400 readings in 80 clusters (one sphere draw each): sd of the rate ~0.016 at 0.95 -> 3 sd band
+    assert trials["hit"].size >= 350
+    assert 0.90 <= cover <= 0.99
     assert lsq_cover < cover
 
 

@@ -50,9 +50,9 @@ def test_quadratic_camera_needs_order_two(quadratic):
 
 def test_tolerance_decides(quadratic):
     """A tolerance below order 2's deviation leaves only the full model."""
-    first = choose_for_scene(quadratic, _scene(60, 3900), cfa="RGGB", repeats=1)
+    first = choose_for_scene(quadratic, _scene(60, 600), cfa="RGGB", repeats=1)
     dev2 = first.table.loc["order 2", "max_dev_sd"]
-    tight = choose_for_scene(quadratic, _scene(60, 3900), cfa="RGGB", tol=0.5 * dev2, repeats=1)
+    tight = choose_for_scene(quadratic, _scene(60, 600), cfa="RGGB", tol=0.5 * dev2, repeats=1)
     assert tight.chosen == "order 4" and not tight.table.loc["order 2", "within_tol"]
 
 

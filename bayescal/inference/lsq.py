@@ -86,7 +86,8 @@ def lstsq(design: np.ndarray, y: np.ndarray, *, intercept_included: bool = True)
     coef = coef_s / norms
     cov = cov_s / np.outer(norms, norms)
     sst = float(np.sum((y - y.mean()) ** 2)) if intercept_included else float(y @ y)
-    return LinearFit(coef=coef, cov=cov, sse=sse, dof=dof, r2=1.0 - sse / sst, n=n)
+    r2 = 1.0 - sse / sst if sst > 0 else float("nan")  # constant readings: R^2 is undefined
+    return LinearFit(coef=coef, cov=cov, sse=sse, dof=dof, r2=r2, n=n)
 
 
 def polyfit(x: np.ndarray, y: np.ndarray, order: int, *, intercept: bool = True) -> LinearFit:

@@ -182,8 +182,13 @@ def run_nuts_many(
                     done(sum(f == n for f in finished))
         return out
 
-    with ThreadPoolExecutor(max_workers=max(1, min(len(jobs), os.cpu_count() or 1))) as pool:
+    pool = ThreadPoolExecutor(max_workers=max(1, min(len(jobs), os.cpu_count() or 1)))
+    try:
         chains = list(pool.map(one, range(len(jobs))))
+    except BaseException:  # Ctrl-C: do not wait for the running chains (a chain cannot be interrupted)
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
     fields = range(len(NutsDraws._fields) - 1)
     outs = [
         NutsDraws(*(np.stack([np.asarray(c[k]) for c in chains[i * n : (i + 1) * n]]) for k in fields))

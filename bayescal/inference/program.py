@@ -25,13 +25,17 @@ from numpyro import handlers
 from numpyro.distributions.transforms import biject_to
 from numpyro.infer.util import constrain_fn, log_likelihood, potential_energy, unconstrain_fn
 
-from ..assemble import CalibrationModel, Parts, numpyro_model
-from ..data import ModelData
+from ..assemble import CalibrationModel, numpyro_model
 
-__all__ = ["Program", "program_for"]
+__all__ = ["Program", "program_for", "program_of", "clear_program_cache"]
 
 _MAX_PROGRAMS = 32
 _CACHE: OrderedDict[tuple, Program] = OrderedDict()
+
+
+def clear_program_cache() -> None:
+    """Forget the cached programs (see :func:`bayescal._caches.clear_caches`)."""
+    _CACHE.clear()
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,7 +95,7 @@ def program_for(model: CalibrationModel) -> Program:
     key = (model.parts, model.layout.shape_key, _shape_key(model.data))
     program = _CACHE.get(key)
     if program is None:
-        program = _build(model.parts, model.data)
+        program = _build(numpyro_model(model.parts), model.data)
         _CACHE[key] = program
         if len(_CACHE) > _MAX_PROGRAMS:
             _CACHE.popitem(last=False)
@@ -100,12 +104,31 @@ def program_for(model: CalibrationModel) -> Program:
     return program
 
 
-def _shape_key(data: ModelData) -> tuple:
-    return tuple((np.shape(x), str(jnp.asarray(x).dtype)) for x in data)
+def program_of(model: Callable, example, obs: str = "obs") -> Program:
+    """The cached program of any numpyro ``model(data)`` whose only argument is a data pytree.
+
+    ``model`` must be the same object for every dataset of one structure (build
+    it once, e.g. in an ``lru_cache``d factory): it is the cache key, together
+    with the data's shapes.  ``obs`` names the observed site (pointwise
+    log-likelihood).
+    """
+    key = (model, obs, _shape_key(example))
+    program = _CACHE.get(key)
+    if program is None:
+        program = _build(model, example, obs)
+        _CACHE[key] = program
+        if len(_CACHE) > _MAX_PROGRAMS:
+            _CACHE.popitem(last=False)
+    else:
+        _CACHE.move_to_end(key)
+    return program
 
 
-def _build(parts: Parts, example: ModelData) -> Program:
-    model = numpyro_model(parts)
+def _shape_key(data) -> tuple:
+    return tuple((np.shape(x), str(jnp.asarray(x).dtype)) for x in jax.tree.leaves(data))
+
+
+def _build(model: Callable, example, obs: str = "obs") -> Program:
 
     def latent_unconstrained(data):
         tr = handlers.trace(handlers.seed(model, 0)).get_trace(data)
@@ -130,7 +153,7 @@ def _build(parts: Parts, example: ModelData) -> Program:
 
     def loglik_one(z, data):
         params = constrain_fn(model, (data,), {}, unravel(z))
-        return log_likelihood(model, params, data, batch_ndims=0)["obs"]
+        return log_likelihood(model, params, data, batch_ndims=0)[obs]
 
     return Program(
         model=model,

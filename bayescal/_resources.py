@@ -1,0 +1,21 @@
+"""Where the shipped model specs and example designs are (the repository's ``models/``)."""
+
+from __future__ import annotations
+
+from importlib.resources import files
+from pathlib import Path
+
+__all__ = ["models_dir"]
+
+
+def models_dir() -> Path:
+    """The shipped ``models/`` directory.
+
+    In a source checkout or an editable install it is the repository's top-level
+    ``models/``; a built wheel carries the same files as the ``bayescal.models``
+    package (``pyproject.toml`` maps one onto the other).
+    """
+    source = Path(__file__).resolve().parent.parent / "models"
+    if (source / "seed000_design.toml").is_file():
+        return source
+    return Path(str(files("bayescal.models")))

@@ -1,0 +1,193 @@
+"""Bad input ends in exit 2 with a message naming the file, row, column or key; outputs are never mixed.
+
+Each case is a class of mistakes seen from users (wrong encodings, corrupt files, typos in keys,
+impossible values, wrong paths), run through the command line as a user would.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import bayescal as bc
+from bayescal.cli import main
+
+from .conftest import MODELS
+
+SPEC = str(MODELS / "seed000_bayer.toml")
+
+
+@pytest.fixture(scope="module")
+def good_csv(tmp_path_factory, seed000):
+    spec, design = seed000
+    path = tmp_path_factory.mktemp("data") / "good.csv"
+    bc.simulate(spec, design, seed=3).table.write_csv(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def fit_dir(tmp_path_factory, good_csv):
+    out = tmp_path_factory.mktemp("fits") / "fit"
+    assert main(["fit", str(good_csv), "--model", SPEC, "--backend", "laplace", "--out", str(out)]) == 0
+    return out
+
+
+def _run(capsys, *argv) -> tuple[int, str]:
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse's own errors
+        rc = exc.code
+    return rc, capsys.readouterr().err
+
+
+def _frame(good_csv) -> pd.DataFrame:
+    return pd.read_csv(good_csv)
+
+
+def test_table_encodings_and_formats(tmp_path, good_csv, capsys):
+    df = _frame(good_csv)
+    df.to_csv(tmp_path / "utf16.csv", index=False, encoding="utf-16")  # with a BOM: accepted
+    assert len(bc.load_table(tmp_path / "utf16.csv")) == len(df)
+    df.assign(channel=df.channel.replace("G", "Grün")).to_csv(tmp_path / "latin1.csv", index=False, encoding="latin-1")
+    rc, err = _run(capsys, "fit", tmp_path / "latin1.csv", "--model", SPEC, "--backend", "lsq", "--out", tmp_path / "o")
+    assert rc == 2 and "latin1.csv: line" in err and "not UTF-8" in err
+    (tmp_path / "bad.parquet").write_bytes(b"PAR1 not a parquet file")
+    rc, err = _run(capsys, "fit", tmp_path / "bad.parquet", "--model", SPEC, "--out", tmp_path / "o")
+    assert rc == 2 and "bad.parquet is not a readable Parquet file" in err
+    rc, err = _run(capsys, "fit", tmp_path, "--model", SPEC, "--out", tmp_path / "o")
+    assert rc == 2 and "expected a .csv or .parquet" in err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    ("edit", "expected"),
+    [
+        (lambda d: d.assign(dn_mean=500.0), "channel 'R' is 500 DN: the channel does not respond"),
+        (
+            lambda d: d.assign(dn_mean=np.where(d.index == 5, -3.0, d.dn_mean)),
+            "row 6, column 'dn_mean': -3 is negative",
+        ),
+        (lambda d: d.assign(gain=np.where(d.index == 2, "two", d.gain)), "row 3, column 'gain': 'two' is not a number"),
+        (lambda d: d.assign(exposure_s=np.where(d.index == 7, 0.0, d.exposure_s)), "row 8, column 'exposure_s'"),
+        (lambda d: d.drop(columns="gain"), "column 'gain': missing required column"),
+        (lambda d: d.iloc[:0], "has no data rows"),
+    ],
+)
+def test_table_values(tmp_path, good_csv, capsys, edit, expected):
+    edit(_frame(good_csv)).to_csv(tmp_path / "t.csv", index=False)
+    rc, err = _run(capsys, "fit", tmp_path / "t.csv", "--model", SPEC, "--backend", "lsq", "--out", tmp_path / "o")
+    assert rc == 2 and expected in err, err
+
+
+def test_spec_and_design_keys(tmp_path, good_csv, capsys):
+    text = (MODELS / "seed000_bayer.toml").read_text()
+    (tmp_path / "utf16.toml").write_text(text.replace("\n", "\n# Grün\n", 1), encoding="latin-1")
+    rc, err = _run(capsys, "fit", good_csv, "--model", tmp_path / "utf16.toml", "--out", tmp_path / "o")
+    assert rc == 2 and "utf16.toml: line 2 is not UTF-8" in err
+    (tmp_path / "warm.toml").write_text(text.replace("warmup = ", "warmup = -5 #"))
+    rc, err = _run(capsys, "fit", good_csv, "--model", tmp_path / "warm.toml", "--out", tmp_path / "o")
+    assert rc == 2 and "inference.warmup = -5; expected >= 10" in err
+    design = (MODELS / "seed000_design.toml").read_text().replace("n_frames", "nframes")
+    design = design.replace('spec = "seed000_bayer.toml"', f'spec = "{SPEC}"')
+    (tmp_path / "design.toml").write_text(design)
+    rc, err = _run(capsys, "simulate", "--design", tmp_path / "design.toml", "--out", tmp_path / "x.csv")
+    assert rc == 2 and "unknown key(s) nframes (did you mean 'n_frames'?)" in err
+    assert not (tmp_path / "x.csv").exists()
+    rc, err = _run(capsys, "fit", good_csv, "--model", tmp_path, "--out", tmp_path / "o")
+    assert rc == 2 and "is a directory; expected a model spec" in err
+
+
+def test_arguments(fit_dir, good_csv, capsys):
+    rc, err = _run(capsys, "select", good_csv, "--model", SPEC, "--orders", "1.5,2")
+    assert rc == 2 and "expected response orders among 1,2,3,4" in err
+    rc, err = _run(
+        capsys, "plan", fit_dir, "--channel", "G", "--dn", "534", "--current", "0.004,1,1,1,1", "--exposures", "0.004"
+    )
+    assert rc == 2 and "1 to 4 numbers), got 5" in err
+    rc, err = _run(capsys, "predict", fit_dir, "--exposure-s", "nan")
+    assert rc == 2
+    rc, err = _run(capsys, "invert", fit_dir, "--dn", "500,x", "--channel", "G")
+    assert rc == 2 and "expected comma-separated numbers" in err
+
+
+def test_corrupt_fit_directories(tmp_path, fit_dir, capsys):
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for p in fit_dir.iterdir():
+        (broken / p.name).write_bytes(p.read_bytes())
+    (broken / "posterior.nc").write_bytes((fit_dir / "posterior.nc").read_bytes()[:3000])
+    rc, err = _run(capsys, "predict", broken, "--exposure-s", "0.01")
+    assert rc == 2 and "posterior.nc is not a readable posterior file" in err and "truncated" in err
+    (broken / "posterior.nc").write_bytes(np.random.default_rng(0).bytes(5000))
+    rc, err = _run(capsys, "invert", broken, "--dn", "500", "--channel", "G")
+    assert rc == 2 and "not a readable posterior file" in err
+    (broken / "posterior.nc").write_bytes((fit_dir / "posterior.nc").read_bytes())
+    (broken / "summary.json").write_text("{bad")
+    rc, err = _run(capsys, "report", broken)
+    assert rc == 2 and "summary.json is missing or not a bayescal summary" in err
+    rc, err = _run(capsys, "predict", tmp_path / "nowhere", "--exposure-s", "0.01")
+    assert rc == 2 and "no posterior at" in err
+
+
+def test_characterize_bad_inputs(tmp_path, capsys):
+    (tmp_path / "empty.csv").write_text("")
+    (tmp_path / "nan.csv").write_text("kind,texp_ns,photons_per_pixel,mean_DN,var_temporal_DN2\nbright,1,2,nan,4\n")
+    (tmp_path / "kind.csv").write_text("kind,texp_ns,photons_per_pixel,mean_DN,var_temporal_DN2\nflat,1,2,3,4\n")
+    (tmp_path / "foreign.npz").write_bytes(b"not an archive")
+    cases = {
+        "empty.csv": "is empty or not a CSV table",
+        "nan.csv": "row 1, column 'mean_DN'",
+        "kind.csv": "kind 'flat'; expected 'bright' or 'dark'",
+        "foreign.npz": "is not a readable .npz archive",
+        "missing.csv": "no such EMVA 1288 input",
+    }
+    for name, expected in cases.items():
+        rc, err = _run(capsys, "characterize", tmp_path / name, "--out", tmp_path / "c")
+        assert rc == 2 and expected in err, (name, err)
+    assert not (tmp_path / "c").exists()
+
+
+def test_outputs_are_never_mixed(tmp_path, good_csv, fit_dir, capsys):
+    out = tmp_path / "fit"
+    out.mkdir()
+    for p in fit_dir.iterdir():  # a former Bayesian fit directory
+        (out / p.name).write_bytes(p.read_bytes())
+    assert (out / "posterior.nc").exists()
+    rc, _ = _run(capsys, "fit", good_csv, "--model", SPEC, "--backend", "lsq", "--out", out)
+    assert rc == 0
+    assert not (out / "posterior.nc").exists()  # the old posterior went with the old fit
+    assert json.loads((out / "summary.json").read_text())["backend"] == "lsq"
+    rc, err = _run(capsys, "predict", out, "--exposure-s", "0.01")
+    assert rc == 2 and "no posterior" in err
+    # a directory bayescal did not write is refused before any work; a file as --out too
+    foreign = tmp_path / "thesis"
+    foreign.mkdir()
+    (foreign / "chapter1.tex").write_text("keep me")
+    rc, err = _run(capsys, "fit", good_csv, "--model", SPEC, "--backend", "lsq", "--out", foreign)
+    assert rc == 2 and "did not write; refusing to replace it" in err
+    assert [p.name for p in foreign.iterdir()] == ["chapter1.tex"]
+    rc, err = _run(capsys, "fit", good_csv, "--model", SPEC, "--backend", "lsq", "--out", good_csv)
+    assert rc == 2 and "is a file; expected a directory" in err
+    # nothing staged is left behind
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_interrupt_exits_130_and_writes_nothing(tmp_path, good_csv):
+    """Ctrl-C during sampling: exit status 130, no output directory, no staging left behind."""
+    out = tmp_path / "fit"
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    cmd = [sys.executable, "-m", "bayescal.cli", "fit", str(good_csv), "--model", SPEC, "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
+    time.sleep(4.0)  # into model building or sampling; where exactly does not matter
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
