@@ -13,7 +13,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from .components import Dark, Noise, Response, Saturation, Sphere
+from .components import Dark, Noise, Response, Saturation, SettingFactors, Sphere
+from .components.settings import KINDS
 from .data import Layout, ModelData, prepare
 from .spec import ModelSpec
 from .table import MeasurementTable
@@ -30,6 +31,7 @@ class Parts:
     noise: Noise
     sphere: Sphere
     saturation: Saturation
+    settings: SettingFactors
 
     @classmethod
     def from_spec(cls, spec: ModelSpec, layout: Layout, level_sigma: np.ndarray) -> Parts:
@@ -41,6 +43,7 @@ class Parts:
             noise=Noise(spec.noise, layout.dn_scale),
             sphere=Sphere(spec.sphere, n_levels, bool(np.any(level_sigma > 0))),
             saturation=Saturation(spec.saturation),
+            settings=_settings(spec, layout),
         )
 
     def describe(self) -> list[str]:
@@ -56,7 +59,31 @@ class Parts:
             + (f", {s.n_levels} level errors" if s.per_level else "")
         )
         items.append("saturation: censored" if self.saturation.spec.censor else "saturation: not modelled")
+        active = self.settings.active()
+        sizes = dict(self.settings.sizes)
+        items.append(
+            "settings: "
+            + (
+                ", ".join(
+                    f"{k} factors ({sizes[k]} values, tolerance {getattr(self.settings.spec, KINDS[k][2]):.1%})"
+                    for k in active
+                )
+                if active
+                else "exact (nominal)"
+            )
+        )
         return items
+
+
+def _settings(spec: ModelSpec, layout: Layout) -> SettingFactors:
+    ref = {"gain": spec.reference.gain, "exposure": spec.reference.exposure_s, "tdi": spec.reference.tdi_stages}
+    sizes, refs = [], []
+    for kind in KINDS:
+        values = np.asarray(layout.setting_values(kind))
+        match = np.flatnonzero(np.isclose(values, ref[kind], rtol=1e-9, atol=0))
+        sizes.append((kind, int(values.size)))
+        refs.append((kind, int(match[0]) if match.size else -1))
+    return SettingFactors(spec.settings, tuple(sizes), tuple(refs))
 
 
 @lru_cache(maxsize=64)
@@ -65,7 +92,7 @@ def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
 
     def model(data: ModelData) -> None:
         gain, eta = parts.response.sample()
-        multiplier = parts.sphere.sample(data)
+        multiplier = parts.sphere.sample(data) * parts.settings.sample(data)
         signal = parts.response.signal(gain, eta, data.u * multiplier, data.channel)
         offset = parts.dark.sample(data)
         var_mean = parts.noise.sample(data, signal)

@@ -31,7 +31,40 @@ import numpy as np
 from .errors import PosteriorError, SpecError, TableError
 from .spec import ModelSpec, Reference
 
-__all__ = ["Calibration", "Setting", "CalibratedRange"]
+__all__ = ["Calibration", "Setting", "CalibratedRange", "SettingFactorDraws"]
+
+#: setting kind -> Setting attribute
+_SETTING_ATTR = {"gain": "gain", "exposure": "exposure_s", "tdi": "tdi_stages"}
+
+
+@dataclass(frozen=True)
+class SettingFactorDraws:
+    """Posterior of one kind's setting factors (:mod:`bayescal.components.settings`).
+
+    ``values`` are the nominal values measured with illumination, ``draws``
+    ``(S, len(values))`` their effective factors (1 at the reference) and
+    ``spread`` ``(S,)`` the kind's spread of log factors.
+    """
+
+    kind: str
+    values: tuple[float, ...]
+    draws: np.ndarray
+    spread: np.ndarray
+
+    def factor(self, value: float, reference_value: float) -> np.ndarray:
+        """Factor per draw at a nominal ``value``: its posterior where measured, 1 at the reference,
+        otherwise a draw from the population ``log f ~ Normal(0, spread)`` (the same draws on every
+        call for the same value: seeded by the kind and value)."""
+        n = self.draws.shape[0]
+        match = np.flatnonzero(np.isclose(self.values, value, rtol=1e-9, atol=0))
+        if match.size:
+            return self.draws[:, int(match[0])]
+        if np.isclose(value, reference_value, rtol=1e-9, atol=0):
+            return np.ones(n)
+        import zlib
+
+        rng = np.random.default_rng(zlib.crc32(f"{self.kind}:{value:.12g}".encode()))
+        return np.exp(self.spread * rng.standard_normal(n))
 
 
 @dataclass(frozen=True)
@@ -131,6 +164,7 @@ class Calibration:
     source: str = ""
     temperature_ref_c: float = 20.0
     doubling_c: np.ndarray | None = None  # (S,) dark-current doubling temperature; None: no T dependence
+    setting_factors: tuple[SettingFactorDraws, ...] = ()  # effective factors of settings (empty: exact)
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -223,6 +257,7 @@ class Calibration:
             source=source,
             temperature_ref_c=spec.dark.temperature_ref_c,
             doubling_c=flat(draws["doubling_c"]) if "doubling_c" in draws else None,
+            setting_factors=_setting_factors(draws, frame, flat),
         )
 
     @classmethod
@@ -324,14 +359,14 @@ class Calibration:
         return self.dark_offset[:, c, gi] + self.dark_slope[:, gi] * t_eff
 
     def signal_dn(self, channel: str, x: np.ndarray, relative: bool = False) -> np.ndarray:
-        """Signal (DN) per draw for effective stimulus ``x``: shape ``(S,) + x.shape``."""
+        """Signal (DN) per draw for effective stimulus ``x`` with the draws on its first axis
+        (shape ``(S, ...)``, or ``(1, ...)`` for the same ``x`` in every draw)."""
         c = self.channel_index(channel)
         coef = (self.coef_rel if relative else self.coef)[:, c, :]  # (S, P)
         x = np.asarray(x, dtype=float)
-        xs = x[None, ...]
-        out = np.zeros((coef.shape[0],) + x.shape)
+        out = np.zeros(np.broadcast_shapes((coef.shape[0],) + (1,) * (x.ndim - 1), x.shape))
         for k in range(coef.shape[1] - 1, -1, -1):  # Horner without constant term
-            out = (out + coef[:, k].reshape((-1,) + (1,) * x.ndim)) * xs
+            out = (out + coef[:, k].reshape((-1,) + (1,) * (x.ndim - 1))) * x
         return out
 
     def noise_var(self, signal: np.ndarray, setting: Setting, n_avg: float = 1.0, prnu: float = 0.0) -> np.ndarray:
@@ -345,10 +380,20 @@ class Calibration:
         excess = self.excess_dn.reshape((-1,) + (1,) * (np.ndim(signal) - 1))
         return pixel / n_avg + excess**2 + (prnu * s) ** 2
 
+    def ratio(self, setting: Setting) -> np.ndarray:
+        """Stimulus -> effective stimulus per draw: the nominal ``t M g / (t_ref M_ref g_ref)`` times the
+        settings' effective factors (posterior where measured, population draws where not)."""
+        ratio = np.full(self.n_draws, setting.ratio(self.reference))
+        for f in self.setting_factors:
+            ref = getattr(self.reference, _SETTING_ATTR[f.kind])
+            ratio = ratio * f.factor(getattr(setting, _SETTING_ATTR[f.kind]), ref)
+        return ratio
+
     def expected_dn(self, channel: str, stimulus, setting: Setting, relative: bool = False) -> np.ndarray:
         """Expected DN (before clipping) per draw: ``(S,) + shape(stimulus)``."""
-        x = np.asarray(stimulus, dtype=float) * setting.ratio(self.reference)
-        dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * np.ndim(x))
+        stimulus = np.asarray(stimulus, dtype=float)
+        x = stimulus[None, ...] * self.ratio(setting).reshape((-1,) + (1,) * stimulus.ndim)
+        dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * stimulus.ndim)
         return dark + self.signal_dn(channel, x, relative)
 
     def sample_dn(
@@ -403,6 +448,19 @@ def _calibrated_range(frame, spec: ModelSpec) -> CalibratedRange:
         max_effective=max_x,
         temperature_c=temps,
     )
+
+
+def _setting_factors(draws: dict, frame, flat) -> tuple[SettingFactorDraws, ...]:
+    """The posterior's setting factors, keyed by the nominal values measured with illumination."""
+    lit = frame["stimulus"].to_numpy() > 0
+    out = []
+    for kind, column in _SETTING_ATTR.items():
+        name = f"setting_factor_{kind}"
+        if name not in draws:
+            continue
+        values = tuple(sorted({float(v) for v in frame.loc[lit, column]})) if column in frame else (1.0,)
+        out.append(SettingFactorDraws(kind, values, flat(draws[name]), flat(draws[f"setting_spread_{kind}"])))
+    return tuple(out)
 
 
 def _photon_transfer(frame, spec, offset, dark_gains, proportional) -> tuple[float, float]:

@@ -33,6 +33,9 @@ class ModelData(NamedTuple):
     g_rel: jnp.ndarray  # gain / reference gain
     channel: jnp.ndarray  # int channel index
     gset: jnp.ndarray  # int gain-setting index
+    fset: jnp.ndarray  # int index of the gain among the illuminated gains (setting factors)
+    eset: jnp.ndarray  # int exposure-setting index
+    mset: jnp.ndarray  # int TDI-setting index
     level: jnp.ndarray  # int level index; dark rows -> n_levels
     level_sigma: jnp.ndarray  # (n_levels,) relative sd of each level's reading
     var_meas: jnp.ndarray  # measured per-pixel variance / full scale^2 (1 if absent)
@@ -48,6 +51,9 @@ class Layout:
 
     channels: tuple[str, ...]
     gain_values: tuple[float, ...]
+    exposure_values: tuple[float, ...]  # measured with illumination
+    tdi_values: tuple[float, ...]  # measured with illumination
+    lit_gain_values: tuple[float, ...]  # measured with illumination
     levels: tuple[str, ...]
     level_stimulus: tuple[float, ...]
     x_scale: float
@@ -59,7 +65,19 @@ class Layout:
     @property
     def shape_key(self) -> tuple[int, ...]:
         """The sizes that determine the compiled model's shapes."""
-        return (self.n_rows, len(self.channels), len(self.gain_values), len(self.levels))
+        return (
+            self.n_rows,
+            len(self.channels),
+            len(self.gain_values),
+            len(self.lit_gain_values),
+            len(self.exposure_values),
+            len(self.tdi_values),
+            len(self.levels),
+        )
+
+    def setting_values(self, kind: str) -> tuple[float, ...]:
+        """Values of a setting kind (``gain``, ``exposure``, ``tdi``) measured with illumination, sorted."""
+        return {"gain": self.lit_gain_values, "exposure": self.exposure_values, "tdi": self.tdi_values}[kind]
 
 
 def effective_stimulus(
@@ -141,6 +159,13 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
             )
         temp = df["temperature_c"].to_numpy() - spec.dark.temperature_ref_c
 
+    # setting factors act on the stimulus: only settings seen with illumination get one (dark rows -> index 0)
+    exposures = tuple(sorted(set(df.loc[~dark, "exposure_s"])))
+    e_index = {t: i for i, t in enumerate(exposures)}
+    stages = tuple(sorted(set(df.loc[~dark, "tdi_stages"])))
+    m_index = {m: i for i, m in enumerate(stages)}
+    lit_gains = tuple(sorted(set(df.loc[~dark, "gain"])))
+    f_index = {g: i for i, g in enumerate(lit_gains)}
     x_scale = float(np.max(x))
     t_scale = float(df["exposure_s"].max())
     data = ModelData(
@@ -150,6 +175,9 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
         g_rel=jnp.asarray(df["gain"].to_numpy() / spec.reference.gain),
         channel=jnp.asarray([ch_index[c] for c in df["channel"]], dtype=jnp.int32),
         gset=jnp.asarray([g_index[g] for g in df["gain"]], dtype=jnp.int32),
+        fset=jnp.asarray([f_index.get(g, 0) for g in df["gain"]], dtype=jnp.int32),
+        eset=jnp.asarray([e_index.get(t, 0) for t in df["exposure_s"]], dtype=jnp.int32),
+        mset=jnp.asarray([m_index.get(m, 0) for m in df["tdi_stages"]], dtype=jnp.int32),
         level=jnp.asarray(level_idx, dtype=jnp.int32),
         level_sigma=jnp.asarray(level_sigma, dtype=float),
         var_meas=jnp.asarray(var_meas),
@@ -161,6 +189,9 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
     layout = Layout(
         channels=channels,
         gain_values=gains,
+        exposure_values=exposures,
+        tdi_values=stages,
+        lit_gain_values=lit_gains,
         levels=levels,
         level_stimulus=tuple(float(v) for v in lit["stimulus"]),
         x_scale=x_scale,

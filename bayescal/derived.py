@@ -32,6 +32,12 @@ DIMS: dict[str, list[str]] = {
     "dark_slope": ["gain_setting"],
     "dark_offset_ref": ["channel"],
     "level_error": ["level"],
+    "gain_log": ["gain_free"],
+    "exposure_log": ["exposure_free"],
+    "tdi_log": ["tdi_free"],
+    "setting_factor_gain": ["lit_gain_setting"],
+    "setting_factor_exposure": ["exposure_setting"],
+    "setting_factor_tdi": ["tdi_setting"],
 }
 
 
@@ -66,5 +72,6 @@ def physical_draws(model: CalibrationModel, draws: dict[str, np.ndarray], seed: 
     out.update(parts.dark.physical(draws, layout))
     out.update(parts.sphere.physical(draws, np.asarray(model.data.level_sigma)))
     out.update(parts.noise.physical(draws))
+    out.update(parts.settings.physical(draws, np.random.default_rng(np.random.SeedSequence([seed, 0x5E7]))))
     out["sphere_scale"] = scale
     return out

@@ -52,6 +52,12 @@ REPORTED = (
     "level_error",
     "excess_dn",
     "doubling_c",
+    "setting_factor_gain",
+    "setting_factor_exposure",
+    "setting_factor_tdi",
+    "setting_spread_gain",
+    "setting_spread_exposure",
+    "setting_spread_tdi",
     "sphere_scale",
 )
 SAMPLED = (
@@ -69,6 +75,9 @@ SAMPLED = (
     "eta_tau",
     "b0_mu",
     "b0_tau",
+    "gain_log",
+    "exposure_log",
+    "tdi_log",
 )
 
 
@@ -115,7 +124,9 @@ class Fit:
             return pd.DataFrame()
         post = self.posterior["posterior"].to_dataset()
         names = [v for v in REPORTED if v in post]
-        table = az.summary(post[names], ci_prob=0.95, ci_kind="eti", round_to="none")
+        with warnings.catch_warnings():  # R-hat of the reference setting's factor (a constant 1) is NaN, by design
+            warnings.simplefilter("ignore", RuntimeWarning)
+            table = az.summary(post[names], ci_prob=0.95, ci_kind="eti", round_to="none")
         median = _flat_stat(post[names], lambda a: np.median(a, axis=(0, 1)))
         table.insert(2, "q2.5", table.pop("eti95_lb"))
         table.insert(3, "q50", median.reindex(table.index))
@@ -384,7 +395,7 @@ def _diagnose(backend, post, divergences, spec, extra, result) -> Diagnostics:
         {
             k: (("chain", "draw") + tuple(f"{k}_{i}" for i in range(v.ndim - 2)), v)
             for k, v in post.items()
-            if k != "sphere_scale"
+            if k != "sphere_scale" and not k.startswith("setting_factor_")  # constants at the reference
         }
     )
     settings = spec.inference
@@ -408,7 +419,14 @@ def _coords(model: CalibrationModel) -> dict:
         "power": list(range(spec.response.order + 1)),
         "nl_term": list(range(1, spec.response.order)),
         "level": list(layout.levels),
+        "exposure_setting": list(layout.exposure_values),
+        "lit_gain_setting": list(layout.lit_gain_values),
+        "tdi_setting": list(layout.tdi_values),
     }
+    refs = dict(model.parts.settings.ref_index)
+    for kind in ("gain", "exposure", "tdi"):
+        values = list(layout.setting_values(kind))
+        coords[f"{kind}_free"] = [v for i, v in enumerate(values) if i != refs[kind]]
     if not model.parts.dark.proportional:
         coords["gain_setting"] = list(layout.gain_values)
     else:

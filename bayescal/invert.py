@@ -123,7 +123,7 @@ def radiance_draws(
         signal -= np.sqrt(var, out=var) * z[None, :]
     coef = (cal.coef_rel if relative else cal.coef)[:, cal.channel_index(channel), :]  # (S, P)
     x = _solve(coef, signal)
-    x /= setting.ratio(cal.reference)
+    x /= cal.ratio(setting)[None, :]
     return x
 
 

