@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+import numpyro
 
 from .components import Dark, Noise, Response, Saturation, SettingFactors, Sphere
 from .components.settings import KINDS
@@ -93,7 +94,9 @@ def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
     def model(data: ModelData) -> None:
         gain, eta = parts.response.sample()
         multiplier = parts.sphere.sample(data) * parts.settings.sample(data)
-        signal = parts.response.signal(gain, eta, data.u * multiplier, data.channel)
+        signal = numpyro.deterministic(
+            "row_signal", parts.response.signal(gain, eta, data.u * multiplier, data.channel)
+        )
         offset = parts.dark.sample(data)
         var_mean = parts.noise.sample(data, signal)
         var_pix = parts.noise.nominal_pixel_variance(data, signal)

@@ -33,6 +33,7 @@ from .inference.nuts import run_nuts
 from .inference.program import program_for
 from .inference.start import initial_point
 from .io import staged_directory, write_json_atomic
+from .misfit import MisfitThresholds, misfit_checks
 from .spec import ModelSpec
 from .table import MeasurementTable
 
@@ -322,6 +323,7 @@ def _finish(model, program, z, backend, seed, divergences, stats, extra, result,
     post, rows = _posterior(model, program, z, seed)
     diag = _diagnose(backend, post, divergences, spec, extra, result)
     diag = _check_outliers(model, rows, diag)
+    diag = _check_misfit(model, rows, post, diag)
     if not diag.ok:
         _fail(strict, f"fit failed its diagnostics: {diag.verdict}")
     with warnings.catch_warnings():  # emcee has more walkers than thinned draws, by design
@@ -349,6 +351,7 @@ def _posterior(model: CalibrationModel, program, z: np.ndarray, seed: int) -> tu
     rows = {
         "mean": np.asarray(sites["row_mean"]).mean(axis=0),
         "var": np.mean(np.asarray(sites["row_sd"]) ** 2, axis=0) + np.var(np.asarray(sites["row_mean"]), axis=0),
+        "signal": np.asarray(sites["row_signal"]).mean(axis=0),
     }
     sites = {k: np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]) for k, v in sites.items()}
     post = {k: v for k, v in sites.items() if k in SAMPLED}
@@ -383,6 +386,31 @@ def _check_outliers(model: CalibrationModel, rows: dict, diag: Diagnostics) -> D
     more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
     problem = f"{len(bad)} outlying row(s), e.g. " + "; ".join(described) + more + ": check those frames"
     return replace(diag, ok=False, problems=diag.problems + (problem,), extra=extra)
+
+
+def _check_misfit(model: CalibrationModel, rows: dict, post: dict, diag: Diagnostics) -> Diagnostics:
+    """Does the model describe its data to within their noise? (:mod:`bayescal.misfit`)"""
+    data, scale, settings = model.data, model.layout.dn_scale, model.spec.inference
+    n_avg = np.asarray(data.n_avg)
+    floor_var = np.asarray(model.parts.noise.nominal_pixel_variance(data, rows["signal"])) / n_avg
+    excess = np.asarray(post["excess_dn"]).ravel() if "excess_dn" in post else None
+    thresholds = MisfitThresholds(settings.misfit_excess_ratio, settings.misfit_group_z, settings.misfit_runs_z)
+    problems, info = misfit_checks(
+        model.table.frame,
+        np.asarray(data.y) * scale,
+        rows["mean"] * scale,
+        np.sqrt(rows["var"]) * scale,
+        rows["signal"] * scale,
+        np.sqrt(floor_var) * scale,
+        excess,
+        np.asarray(data.censored),
+        thresholds,
+    )
+    info["thresholds"] = {"excess_ratio": thresholds.excess_ratio, "group_z": thresholds.group_z}
+    extra = dict(diag.extra, misfit=info)
+    if not problems:
+        return replace(diag, extra=extra)
+    return replace(diag, ok=False, problems=diag.problems + tuple(problems), extra=extra)
 
 
 def _diagnose(backend, post, divergences, spec, extra, result) -> Diagnostics:

@@ -106,6 +106,7 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
     figures = {
         "response": _fig_response(cal, frame, lsq),
         "residuals": _fig_residuals(cal, frame),
+        "misfit": _fig_misfit(summary["diagnostics"].get("misfit")),
         "budget": _fig_budget(budget),
         "trace": _fig_trace(tree, cal),
     }
@@ -260,6 +261,35 @@ def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
     return _png(fig)
 
 
+def _fig_misfit(misfit: dict | None) -> str:
+    """The misfit checks (:mod:`bayescal.misfit`): residual sums per group of rows, and the excess scatter."""
+    import matplotlib.pyplot as plt
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 3.4), gridspec_kw={"width_ratios": [4, 1]})
+    limits = (misfit or {}).get("thresholds", {"excess_ratio": 10.0, "group_z": 4.0})
+    zmax, rmax = limits["group_z"], limits["excess_ratio"]
+    groups = pd.DataFrame((misfit or {}).get("groups", []))
+    if len(groups):
+        short = {"exposure_s": "exposure", "tdi_stages": "TDI"}
+        labels = [f"{short.get(r.column, r.column)} {r.value}" for r in groups.itertuples()]
+        colors = ["C3" if abs(z) > zmax else "C0" for z in groups["z"]]
+        ax.bar(range(len(groups)), groups["z"], color=colors)
+        ax.set_xticks(range(len(groups)), labels, rotation=60, ha="right", fontsize=7)
+        for level in (-zmax, zmax):
+            ax.axhline(level, color="C3", lw=0.8, ls="--")
+        ax.set(ylabel="sum of residuals / sqrt(n)  (sd)", title=f"residuals by group of rows (|z| > {zmax:g}: flagged)")
+    ratio = (misfit or {}).get("excess_ratio")
+    if ratio is not None:
+        bx.bar([0], [ratio], color="C3" if ratio > rmax else "C0")
+        bx.axhline(rmax, color="C3", lw=0.8, ls="--")
+        bx.set_xticks([0], ["excess / floor"])
+        bx.set(title="excess scatter", ylabel="x noise floor")
+    else:
+        bx.set_axis_off()
+    fig.tight_layout()
+    return _png(fig)
+
+
 def _fig_budget(budget: pd.DataFrame) -> str:
     import matplotlib.pyplot as plt
 
@@ -405,6 +435,11 @@ least squares), beside the least-squares estimate and its 95 % confidence interv
 {img("response", "response curves")}
 <h2>Residuals</h2>
 {img("residuals", "residuals")}
+<h2>Does the model fit its data?</h2>
+<p>Standardised residuals summed over each group of rows (gain step, exposure, TDI, channel, sphere level),
+and the fitted excess scatter over the noise floor of a row mean. A group beyond 4 sd or an excess over 10
+floors fails the fit: the model would otherwise absorb the misfit into its noise.</p>
+{img("misfit", "misfit checks")}
 <h2>Uncertainty budget of inverted radiance</h2>
 <p>Share of the variance of radiance inverted from one pixel's reading at the reference setting.</p>
 {img("budget", "uncertainty budget")}

@@ -172,13 +172,16 @@ class SettingsSpec:
     random variables around their nominal values, partially pooled per kind
     (:mod:`bayescal.components.settings`).  Each tolerance is the prior mean of
     that kind's spread of log factors: the lab's statement of how exact its
-    settings are (0: exact, the factors are left out).  The defaults are
-    conservative for CCD gain steps (5 %) and shutters or line clocks (2 %).
+    settings are (0: exact, the factors are left out).  The defaults, 5 % for
+    every kind, are what the source documents measured: at 1/100 s seed 000's
+    red slope was 5.2 % above the one derived from 1/250 s (Table 2), and
+    seed 002's settings chosen by eq. 12 read 6.6 % above and 8.8 % below
+    their targets.
     """
 
     gain_tolerance: float = 0.05
-    exposure_tolerance: float = 0.02
-    tdi_tolerance: float = 0.02
+    exposure_tolerance: float = 0.05
+    tdi_tolerance: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -193,6 +196,12 @@ class InferenceSpec:
     where the posterior is close to isotropic: a diagonal metric and 500
     warmup iterations suffice there (a dense metric measured ~3x slower per
     draw with no gain in ESS on the seed 000 model).
+
+    ``misfit_*``: when the model is judged not to fit its data
+    (:mod:`bayescal.misfit`): excess scatter over this many noise floors,
+    a group of rows whose residuals sum to more than ``misfit_group_z``
+    sds, residual runs along the signal below ``misfit_runs_z`` (0 turns a
+    check off).
 
     ``retry_target_accept``: a NUTS run with divergent transitions is run
     again (new chains) with this target acceptance, i.e. smaller steps, and
@@ -215,6 +224,9 @@ class InferenceSpec:
     emcee_burn: int = 2000
     max_rhat: float = 1.01
     min_ess: float = 400.0
+    misfit_excess_ratio: float = 10.0
+    misfit_group_z: float = 4.0
+    misfit_runs_z: float = -4.0
 
 
 @dataclass(frozen=True)
@@ -380,7 +392,9 @@ def _check_spec(spec: ModelSpec) -> None:
         (spec.dark.doubling_c > 0 and spec.dark.doubling_rel_sd > 0, "dark.doubling_c and doubling_rel_sd must be > 0"),
         (spec.saturation.prnu >= 0, "saturation.prnu must be >= 0"),
         (
-            all(0 <= getattr(spec.settings, k) < 0.5 for k in ("gain_tolerance", "exposure_tolerance", "tdi_tolerance")),
+            all(
+                0 <= getattr(spec.settings, k) < 0.5 for k in ("gain_tolerance", "exposure_tolerance", "tdi_tolerance")
+            ),
             "settings tolerances must be in [0, 0.5) (relative standard deviations; 0: exact)",
         ),
         (spec.response.gain_prior_median > 0, "response.gain_prior_median must be > 0"),

@@ -64,9 +64,7 @@ class SettingFactors:
         """Kinds whose factors are free: a tolerance > 0 and a measured non-reference value."""
         sizes, refs = dict(self.sizes), dict(self.ref_index)
         return [
-            k
-            for k in KINDS
-            if getattr(self.spec, KINDS[k][2]) > 0 and sizes.get(k, 0) - (refs.get(k, -1) >= 0) > 0
+            k for k in KINDS if getattr(self.spec, KINDS[k][2]) > 0 and sizes.get(k, 0) - (refs.get(k, -1) >= 0) > 0
         ]
 
     def log_factors(self, kind: str, logf, xp=jnp):

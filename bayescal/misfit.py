@@ -1,0 +1,162 @@
+"""Does the model fit its data?  Posterior predictive checks that say what is wrong and where.
+
+A model that cannot describe its data has two ways to hide it: an inflated
+excess-scatter term (every residual then looks small) and residuals that are
+each unremarkable but share a sign or a trend across a group of rows.  So a
+fit is checked for
+
+- **excess scatter against the noise floor**: the fitted extra scatter of a
+  region mean, compared with the noise that averaging ``n_frames x n_pixels``
+  readings leaves (read, shot and quantisation noise, or the measured
+  ``dn_var``).  Lamp drift or a slightly wrong noise model give a few times
+  the floor; a setting whose gain is 5 % off gives 100 times;
+- **residual structure by group**: rows of one gain step, exposure, TDI
+  setting, channel or sphere level whose standardised residuals share a sign
+  (their sum over ``sqrt(n)`` is ~Normal(0, 1) under the model), reported
+  with the group's relative deviation from the model;
+- **runs along the signal**: within a channel, residuals sorted by signal
+  that change sign too rarely (Wald-Wolfowitz runs test): the response shape
+  is not what the model can draw (e.g. a roll-off near full scale).
+
+Each check that fires adds a problem naming the rows and a remedy; the fit is
+then reported failed (exit 3, the report's banner).  The numbers behind the
+checks are kept in the diagnostics (``misfit``) and drawn in the report.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["MisfitThresholds", "misfit_checks", "group_residuals"]
+
+
+@dataclass(frozen=True)
+class MisfitThresholds:
+    """When a check fires.
+
+    ``excess_ratio``: fitted excess scatter / median noise floor of a row mean
+    (0 turns the check off).  ``group_z``: |sum of standardised residuals| /
+    sqrt(n) of a group (4: a false alarm ~6e-5 per group, < 0.3 % over the ~40
+    groups of a typical table).  ``runs_z``: the runs statistic along the
+    signal within a channel (one-sided, too few runs).
+    """
+
+    excess_ratio: float = 10.0
+    group_z: float = 4.0
+    runs_z: float = -4.0
+
+
+#: table column -> how a group of it is named in messages
+_GROUPS = {
+    "gain": "gain {v:g} rows",
+    "exposure_s": "exposure {v:g} s rows",
+    "tdi_stages": "TDI {v:g} rows",
+    "channel": "channel {v} rows",
+    "level": "sphere level {v} rows",
+}
+_REMEDY = {
+    "gain": "the effective gain of that step differs from its label (settings.gain_tolerance)",
+    "exposure_s": "the effective exposure differs from the nominal one: a shutter offset (settings.exposure_tolerance)",
+    "tdi_stages": "the effective TDI factor differs from the stage count (settings.tdi_tolerance)",
+    "channel": "this channel's response or offset is not what the model can draw",
+    "level": "this sphere level's radiance reading is off beyond sphere.per_level_rel",
+}
+
+
+def group_residuals(frame: pd.DataFrame, resid_z: np.ndarray, rel_dev: np.ndarray, lit: np.ndarray) -> pd.DataFrame:
+    """Per group of rows: count, summed standardised residual / sqrt(n), and median relative deviation."""
+    rows = []
+    for column in _GROUPS:
+        if column not in frame:
+            continue
+        values = frame[column].to_numpy()
+        for v in pd.unique(values[lit]):
+            m = lit & (values == v)
+            n = int(m.sum())
+            if n < 2:
+                continue
+            rows.append(
+                {
+                    "column": column,
+                    "value": v,
+                    "n": n,
+                    "z": float(resid_z[m].sum() / np.sqrt(n)),
+                    "rel_dev": float(np.median(rel_dev[m])),
+                }
+            )
+    return pd.DataFrame(rows, columns=["column", "value", "n", "z", "rel_dev"])
+
+
+def runs_z(resid: np.ndarray) -> float:
+    """Wald-Wolfowitz runs statistic of the residual signs (negative: fewer runs than chance)."""
+    signs = resid > 0
+    n1, n2 = int(signs.sum()), int((~signs).sum())
+    n = n1 + n2
+    if n1 == 0 or n2 == 0:
+        return -np.inf if n >= 8 else 0.0
+    runs = 1 + int(np.count_nonzero(signs[1:] != signs[:-1]))
+    mean = 2.0 * n1 * n2 / n + 1.0
+    var = 2.0 * n1 * n2 * (2.0 * n1 * n2 - n) / (n**2 * (n - 1))
+    return float((runs - mean) / np.sqrt(var)) if var > 0 else 0.0
+
+
+def misfit_checks(
+    frame: pd.DataFrame,
+    y_dn: np.ndarray,
+    mean_dn: np.ndarray,
+    sd_dn: np.ndarray,
+    signal_dn: np.ndarray,
+    floor_dn: np.ndarray,
+    excess_dn: np.ndarray | None,
+    censored: np.ndarray,
+    thresholds: MisfitThresholds = MisfitThresholds(),  # noqa: B008 - frozen
+) -> tuple[list[str], dict]:
+    """Run the checks on one fit's posterior predictive summaries (all in DN, one value per row).
+
+    Returns the problems found (empty: the model fits its data) and the
+    numbers behind them.
+    """
+    problems: list[str] = []
+    lit = (frame["stimulus"].to_numpy() > 0) & ~censored
+    usable = ~censored
+    resid = y_dn - mean_dn
+    z = np.where(usable, resid / sd_dn, 0.0)
+    info: dict = {}
+    floor = float(np.median(floor_dn[usable])) if usable.any() else float("nan")
+    info["noise_floor_dn"] = floor
+    if excess_dn is not None and thresholds.excess_ratio > 0:
+        excess = float(np.median(excess_dn))
+        ratio = excess / floor if floor > 0 else np.inf
+        info.update(excess_dn=excess, excess_ratio=ratio)
+        if ratio > thresholds.excess_ratio:
+            problems.append(
+                f"the fitted excess scatter is {excess:.3g} DN, {ratio:.0f}x the noise floor of a row mean "
+                f"({floor:.3g} DN from n_frames x n_pixels): the model does not describe the data to within their "
+                "noise and has inflated its scatter instead"
+            )
+    rel = np.where(lit & (np.abs(signal_dn) > 1e-9), resid / np.where(np.abs(signal_dn) > 1e-9, signal_dn, 1.0), 0.0)
+    groups = group_residuals(frame, z, rel, lit)
+    info["groups"] = groups.to_dict("records")
+    flagged = groups[np.abs(groups["z"]) > thresholds.group_z].sort_values("z", key=np.abs, ascending=False)
+    for r in flagged.head(4).itertuples():
+        name = _GROUPS[r.column].format(v=r.value)
+        side = "above" if r.z > 0 else "below"
+        problems.append(
+            f"{name} sit {abs(r.rel_dev):.2%} {side} the model (n = {r.n}, z = {r.z:+.1f}): {_REMEDY[r.column]}"
+        )
+    runs = {}
+    if "channel" in frame:
+        for ch in pd.unique(frame["channel"].to_numpy()[lit]):
+            m = lit & (frame["channel"].to_numpy() == ch)
+            order = np.argsort(signal_dn[m], kind="stable")
+            runs[str(ch)] = runs_z(z[m][order])
+            if runs[str(ch)] < thresholds.runs_z:
+                problems.append(
+                    f"channel {ch}: residuals change sign too rarely along the signal (runs z = {runs[str(ch)]:+.1f}): "
+                    "the response shape is not one the model can draw (a roll-off near full scale? a higher order?)"
+                )
+    info["runs_z"] = runs
+    return problems, info

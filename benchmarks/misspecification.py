@@ -1,0 +1,173 @@
+"""Honest intervals on cameras that do not obey the model: coverage, or a loud flag.
+
+Run: ``python benchmarks/misspecification.py [--laplace 100] [--nuts 20] [--only CASE]``.
+
+Every dataset comes from :mod:`bayescal.validation.bench`, a bench simulator
+written apart from the model code (it imports none of bayescal's components),
+with one realistic departure switched on per case, and all of them at once.
+Calibrations leave out the 1/100 s sweep; predictions are made for it (an
+exposure never measured with light: its factor comes from the population)
+and for gain 2 at 1/250 s (a combination never measured).  Per case and
+backend:
+
+- ``flagged``: fraction of fits reported failed (exit 3), by the diagnostics
+  or the misfit checks (:mod:`bayescal.misfit`);
+- coverage of the 95 % intervals, over all datasets, of the sphere-relative
+  coefficients ``A0, A1`` at the reference setting (3 channels), of the
+  absolute gains ``A1`` (sphere scale folded in) and of held-out readings
+  (2 settings x 3 channels x 2 radiances, one region mean each);
+- least squares' 95 % confidence intervals of ``A0, A1`` (sphere-relative)
+  beside them.
+
+A case passes when every Bayesian coverage is in [0.90, 0.98] or at least
+95 % of its fits are flagged; above 0.98 it is reported as conservative.  Writes
+``benchmarks/results/misspecification.{csv,md}`` (rows merge across ``--only`` runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+import bayescal as bc
+from bayescal.validation import BenchCamera, Departures, simulate_bench, with_held_out
+
+OUT = Path(__file__).resolve().parent / "results"
+SPEC = Path(__file__).resolve().parent.parent / "models" / "seed000_bayer.toml"
+CASES = {
+    "none (pixel-level bench)": Departures(),
+    "gain steps +-8 %": Departures(gain_step_error=0.08),
+    "shutter offset 0.2 ms": Departures(shutter_offset_s=0.0002),
+    "roll-off near full scale": Departures(rolloff=True),
+    "spectral level errors 0.3 %": Departures(spectral_level_rel=0.003),
+    "dark drift 3 DN": Departures(dark_drift_dn=3.0),
+    "PRNU 3 %, partial clipping": Departures(prnu=0.03),
+    "all of them": Departures.everything(),
+}
+HELD_OUT = [bc.Setting(0.01, 1.0), bc.Setting(0.004, 2.0)]
+RADIANCES = (6.0, 18.0)
+
+
+def one_dataset(spec, dep: Departures, seed: int, backend: str) -> dict:
+    """Fit one bench dataset; hits of every interval and whether the fit was flagged."""
+    camera = with_held_out(BenchCamera(), exposures=(0.01,))
+    frame, real = simulate_bench(camera, dep, seed=seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = bc.fit(bc.MeasurementTable.from_frame(frame), spec, backend, seed=seed)
+    channels = list(fit.model.layout.channels)
+    rel = fit.draws("A_rel")[..., :2]
+    gain = fit.draws("gain")
+    out = {"flagged": not fit.ok, "coef": [], "gain": [], "pred": [], "lsq": []}
+    lsq = fit.lsq
+    at_ref = lsq[np.isclose(lsq.exposure_s, spec.reference.exposure_s) & (lsq.gain == 1.0) & (lsq.order == 2)]
+    for ci, c in enumerate(channels):
+        t_rel, t_abs = real.true_coefficients(c, relative=True), real.true_coefficients(c)
+        lo, hi = np.quantile(rel[:, ci, :], [0.025, 0.975], axis=0)
+        out["coef"] += list((lo <= t_rel[:2]) & (t_rel[:2] <= hi))
+        glo, ghi = np.quantile(gain[:, ci], [0.025, 0.975])
+        out["gain"].append(glo <= t_abs[1] <= ghi)
+        row = at_ref[at_ref.channel == c]
+        if len(row):
+            r = row.iloc[0]
+            out["lsq"] += [r["A0_lo"] <= t_rel[0] <= r["A0_hi"], r["A1_lo"] <= t_rel[1] <= r["A1_hi"]]
+    cal = bc.Calibration.from_fit(fit)
+    rng = np.random.default_rng([seed, 7])
+    n_avg = camera.n_frames * camera.n_pixels
+    for setting in HELD_OUT:
+        table = bc.predict(cal, list(RADIANCES), setting, n_avg=n_avg, seed=seed)
+        for r in table.itertuples():
+            truth = real.read(r.channel, r.stimulus, setting.exposure_s, setting.gain, rng)
+            out["pred"].append(r.pi_lo <= truth <= r.pi_hi)
+    return out
+
+
+def run_case(name: str, dep: Departures, backend: str, reps: int, spec) -> dict:
+    t0 = time.perf_counter()
+    results = [one_dataset(spec, dep, 10_000 + i, backend) for i in range(reps)]
+    flagged = np.array([r["flagged"] for r in results])
+
+    def cover(key, mask=None):
+        vals = [v for r, f in zip(results, flagged, strict=True) if mask is None or not f for v in r[key]]
+        return float(np.mean(vals)) if vals else float("nan")
+
+    row = {
+        "case": name,
+        "backend": backend,
+        "datasets": reps,
+        "flagged": float(flagged.mean()),
+        "coef_coverage": cover("coef"),
+        "gain_coverage": cover("gain"),
+        "heldout_coverage": cover("pred"),
+        "coef_coverage_unflagged": cover("coef", True),
+        "heldout_coverage_unflagged": cover("pred", True),
+        "lsq_coef_coverage": cover("lsq"),
+        "seconds": time.perf_counter() - t0,
+    }
+    rates = [row[k] for k in ("coef_coverage", "gain_coverage", "heldout_coverage")]
+    if row["flagged"] >= 0.95:
+        row["verdict"] = "flagged"
+    elif min(rates) < 0.90:
+        row["verdict"] = "SILENTLY WRONG"
+    else:
+        row["verdict"] = "covers" if max(rates) <= 0.98 else "covers (conservative)"
+    return row
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--laplace", type=int, default=100, help="datasets per case for the laplace backend")
+    p.add_argument("--nuts", type=int, default=20, help="datasets per case for the nuts backend")
+    p.add_argument("--only", help="run only the cases whose name contains this")
+    args = p.parse_args()
+    spec = bc.load_spec(SPEC)
+    OUT.mkdir(exist_ok=True)
+    csv = OUT / "misspecification.csv"
+    old = pd.read_csv(csv) if csv.exists() else pd.DataFrame()
+    rows = []
+    for name, dep in CASES.items():
+        if args.only and args.only not in name:
+            continue
+        for backend, reps in (("laplace", args.laplace), ("nuts", args.nuts)):
+            if reps <= 0:
+                continue
+            row = run_case(name, dep, backend, reps, spec)
+            rows.append(row)
+            print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
+            new = pd.DataFrame(rows)
+            if len(old):
+                keep = ~old.set_index(["case", "backend"]).index.isin(new.set_index(["case", "backend"]).index)
+                new = pd.concat([old[keep], new], ignore_index=True)
+            order = {c: i for i, c in enumerate(CASES)}
+            new = new.sort_values(["case", "backend"], key=lambda s: s.map(order) if s.name == "case" else s)
+            new.to_csv(csv, index=False, float_format="%.4g")
+            (OUT / "misspecification.md").write_text(_markdown(new))
+
+
+def _markdown(df: pd.DataFrame) -> str:
+    cols = [
+        "case",
+        "backend",
+        "datasets",
+        "flagged",
+        "coef_coverage",
+        "gain_coverage",
+        "heldout_coverage",
+        "lsq_coef_coverage",
+        "verdict",
+    ]
+    head = "| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n"
+    body = "".join(
+        "| " + " | ".join(f"{r[c]:.3f}" if isinstance(r[c], float) else str(r[c]) for c in cols) + " |\n"
+        for _, r in df.iterrows()
+    )
+    return head + body
+
+
+if __name__ == "__main__":
+    main()
