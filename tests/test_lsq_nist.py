@@ -167,3 +167,29 @@ def test_flat_prior_nuts_hard_nonlinear():
         starts, cert, sd, data = read_nonlinear(name)
         post = regression_posterior(NONLINEAR[name], data[:, 1], data[:, 0], starts[1], seed=1)
         assert post.divergences > 0 or post.max_rhat > 1.01, name
+
+
+def test_nonlinear_convergence_is_certified_not_assumed():
+    """Starts far from the NIST ones: the solve either reaches the certified optimum (restarting where
+    the first search stops at a stationary point that is not it) or says it did not converge, and why."""
+    from bayescal.inference.nls import nonlinear_lsq
+
+    def certified_sse(name, cert, data):
+        r = np.asarray(NONLINEAR[name](jnp.asarray(cert), jnp.asarray(data[:, 1]))) - data[:, 0]
+        return float(r @ r)
+
+    for name, mult in (("BoxBOD", -1.0), ("Misra1b", -100.0), ("Chwirut2", -1.0)):
+        starts, cert, _, data = read_nonlinear(name)
+        fit = nonlinear_lsq(NONLINEAR[name], data[:, 1], data[:, 0], starts[0] * mult)
+        assert fit.converged and fit.rel_offset < 1e-3, (name, fit.why)
+        assert fit.sse == pytest.approx(certified_sse(name, cert, data), rel=1e-6), name
+    starts, cert, _, data = read_nonlinear("Misra1b")
+    assert (
+        "distinct stationary points"
+        in nonlinear_lsq(NONLINEAR["Misra1b"], data[:, 1], data[:, 0], -100 * starts[0]).why
+    )
+    for name in ("DanWood", "Eckerle4"):  # 1000 x the start: every restart lands where the Jacobian is singular
+        starts, cert, _, data = read_nonlinear(name)
+        fit = nonlinear_lsq(NONLINEAR[name], data[:, 1], data[:, 0], starts[0] * 1000)
+        assert not fit.converged and "rank-deficient" in fit.why
+        assert fit.sse > 10 * certified_sse(name, cert, data)
