@@ -362,9 +362,14 @@ def _cmd_characterize(args) -> int:
     from .emva import load_steps
     from .io import check_output_dir, staged_directory, write_json_atomic
     from .photon_transfer import characterize, plot_curves
+    from .progress import stage_reporter
 
     out = check_output_dir(args.out)
-    res = characterize(load_steps(args.input), seed=args.seed)
+    stage = stage_reporter()
+    stage(f"reading {args.input} (image pairs and stacks are reduced streaming)")
+    steps = load_steps(args.input)
+    stage("standard method and posteriors")
+    res = characterize(steps, seed=args.seed)
     with staged_directory(out, kind="characterization") as stage:
         res.table.to_csv(stage("characterization.csv"), index=False, float_format="%.8g")
         write_json_atomic(stage("characterization.json"), res.to_dict())
@@ -387,6 +392,9 @@ def _cmd_select(args) -> int:
     table, spec = load_table(args.data), load_spec(args.model)
     off = tuple(x for x in args.without.split(",") if x)
     specs = order_candidates(spec, tuple(int(o) for o in args.orders), off)
+    from .progress import stage_reporter
+
+    stage_reporter()(f"fitting {len(specs)} candidate models ({args.backend}) for PSIS-LOO")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FitFailedWarning)
         cmp = compare_specs(table, specs, backend=args.backend, seed=args.seed)
@@ -454,6 +462,9 @@ def _cmd_report(args) -> int:
         from .errors import SpecError
 
         raise SpecError(f"{fit_dir} holds a least-squares fit (no posterior.nc); a report needs a Bayesian backend")
+    from .progress import stage_reporter
+
+    stage_reporter()("drawing the report's figures and tables")
     path = write_report(fit_dir, args.out, seed=args.seed)
     print(f"wrote {path} (+ {path.with_suffix('.json').name}, {path.with_suffix('.md').name})")
     return 0
@@ -507,7 +518,7 @@ def _run_fit(
     import warnings
 
     from . import FitFailedWarning, fit
-    from .progress import progress_bar
+    from .progress import progress_bar, stage_reporter
     from .report_text import render_summary
 
     inf = spec.inference
@@ -515,10 +526,10 @@ def _run_fit(
         total, desc = inf.emcee_burn + inf.emcee_steps, "emcee (ensemble steps)"
     else:
         total, desc = inf.warmup + inf.draws, f"nuts ({inf.chains} chains)"
-    with progress_bar(total, desc, quiet or backend not in ("nuts", "emcee")) as tick:
+    with progress_bar(total, desc, quiet or backend not in ("nuts", "emcee")) as tick:  # draws on a terminal only
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FitFailedWarning)  # reported below, loudly
-            result = fit(table, spec, backend, seed=seed, progress=tick)
+            result = fit(table, spec, backend, seed=seed, progress=tick, stage=stage_reporter(quiet))
     result.save(out, measurements=measurements)
     print(render_summary(result))
     if report and result.posterior is not None:

@@ -224,6 +224,7 @@ def fit(
     seed: int = 0,
     progress=None,
     strict: bool = False,
+    stage=None,
 ) -> Fit:
     """Fit ``spec`` to ``table``.
 
@@ -238,10 +239,14 @@ def fit(
         and emcee (ensemble steps, burn-in included).
     strict : bool
         Raise :class:`FitFailedError` instead of warning when diagnostics fail.
+    stage : callable, optional
+        ``stage(message)`` is called as each stage starts (model, mode, sampling, checks).
     """
+    stage = stage or (lambda message: None)
     if backend not in BACKENDS:
         raise SpecError(f"unknown backend '{backend}'; expected one of {', '.join(BACKENDS)}")
     t0 = time.perf_counter()
+    stage(f"assembling the model ({len(table)} rows) and the least-squares baseline")
     model = build_model(table, spec)
     lsq = lsq_baseline(table, orders=range(1, spec.response.order + 1), full_scale=spec.full_scale)
     timings = {"prepare": time.perf_counter() - t0}
@@ -258,6 +263,7 @@ def fit(
         )
         diag = Diagnostics(not problems, problems, extra={"note": "least squares: no posterior"})
         return Fit(model, backend, seed, None, diag, lsq, timings)
+    stage("finding the posterior mode (the first fit of a model structure compiles it; cached afterwards)")
     program = program_for(model)
     t1 = time.perf_counter()
     result = laplace(program, model.data, initial_point(model, program))
@@ -272,6 +278,8 @@ def fit(
     if backend == "laplace":
         z = _laplace_z(model, program, result, seed, extra)
     elif backend == "nuts":
+        inf = spec.inference
+        stage(f"sampling: NUTS, {inf.chains} chains x ({inf.warmup} warmup + {inf.draws} draws)")
         out = run_nuts(program, model.data, result.mode, result.cov, spec.inference, seed, progress)
         note_retry(out, spec.inference, extra)
         z, divergences, stats = out.z, int(out.diverging.sum()), _nuts_stats(out)
@@ -282,6 +290,7 @@ def fit(
             acceptance_fraction=out.acceptance, max_autocorr_steps=out.autocorr_steps, n_eff=out.n_eff, thin=out.thin
         )
     timings[backend] = time.perf_counter() - t2
+    stage("diagnostics, misfit checks and the posterior in physical units")
     return _finish(model, program, z, backend, seed, divergences, stats, extra, result, lsq, timings, strict)
 
 

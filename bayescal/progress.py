@@ -1,23 +1,27 @@
-"""Progress bars on a terminal, silent otherwise (not a TTY, or ``--quiet``)."""
+"""Progress on long work: stage messages and tqdm bars (tqdm decides whether stderr is a terminal)."""
 
 from __future__ import annotations
 
 import sys
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-__all__ = ["progress_bar"]
+__all__ = ["progress_bar", "stage_reporter"]
 
 
 @contextmanager
 def progress_bar(total: int, desc: str, quiet: bool = False) -> Iterator[Callable[[int], None] | None]:
-    """Yield ``tick(done)`` that advances a tqdm bar to ``done``, or None when silent."""
-    if quiet or not sys.stderr.isatty():
+    """Yield ``tick(done)`` that advances a tqdm bar to ``done``, or None when quiet.
+
+    tqdm draws nothing when stderr is not a terminal (``disable=None``).
+    """
+    if quiet:
         yield None
         return
     from tqdm import tqdm
 
-    bar = tqdm(total=total, desc=desc, unit="it", leave=False)
+    bar = tqdm(total=total, desc=desc, unit="it", leave=False, disable=None, file=sys.stderr)
 
     def tick(done: int) -> None:
         bar.update(max(0, min(done, total) - bar.n))
@@ -26,3 +30,14 @@ def progress_bar(total: int, desc: str, quiet: bool = False) -> Iterator[Callabl
         yield tick
     finally:
         bar.close()
+
+
+def stage_reporter(quiet: bool = False) -> Callable[[str], None]:
+    """``stage(message)``: one line on stderr per stage of a long run, with the seconds elapsed."""
+    start = time.perf_counter()
+
+    def stage(message: str) -> None:
+        if not quiet:
+            print(f"[{time.perf_counter() - start:6.1f} s] {message}", file=sys.stderr, flush=True)
+
+    return stage
