@@ -377,7 +377,9 @@ def _cmd_characterize(args) -> int:
         plot_curves(res, stage("photon_transfer.png"))
     print(f"EMVA 1288 characterisation of {args.input} (standard point estimate | posterior median [95 %]):")
     print(res.table.to_string(index=False, float_format="%.5g"))
-    verdict = "compatible" if res.dark_current_compatible else "NOT compatible"
+    verdict = {True: "compatible", False: "NOT compatible", None: "not determined (one dark exposure time)"}[
+        res.dark_current_compatible
+    ]
     print(f"dark current from the mean and from the variance: {verdict} (95 % interval of their difference)")
     print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir() if not p.name.startswith("."))))
     return 0

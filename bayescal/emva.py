@@ -250,8 +250,25 @@ def _from_csv(path: Path) -> Steps:
                     "n_images": int(r.n_images),
                 },
             )
-    bits = 12 if df["mean_DN"].max() < 4096 else 16
+    bits = _bits(df, path)
     return _steps(rows, stacks, bits, str(path))
+
+
+def _bits(df: pd.DataFrame, path: Path) -> int:
+    """The ADC bit depth: a ``bits`` column, or the smallest common depth whose full scale holds every mean.
+
+    (Guessing 12 for anything below 4096 DN made an 8-bit camera's saturation meaningless.)
+    """
+    if "bits" in df:
+        values = pd.to_numeric(df["bits"], errors="coerce").dropna().unique()
+        if values.size != 1 or not 1 <= values[0] <= 24:
+            raise TableError(f"{path}: the 'bits' column must hold one bit depth (1-24)", column="bits")
+        return int(values[0])
+    top = float(df["mean_DN"].max())
+    for bits in (8, 10, 12, 14, 16):
+        if top <= 2**bits - 1:
+            return bits
+    raise TableError(f"{path}: mean_DN up to {top:g} exceeds a 16-bit range; give a 'bits' column", column="mean_DN")
 
 
 def _steps(rows: list[dict], stacks: dict, bits: int, source: str) -> Steps:

@@ -53,7 +53,7 @@ class Characterization:
     draws: dict
     curves: pd.DataFrame
     ranges: dict
-    dark_current_compatible: bool
+    dark_current_compatible: bool | None  # None: the dark current is not determined
     source: str
 
     def to_dict(self) -> dict:
@@ -67,11 +67,26 @@ class Characterization:
 
 
 def _aligned(steps: Steps) -> pd.DataFrame:
+    """Each bright step beside the dark step at its exposure.
+
+    Both layouts of the standard are accepted: an exposure sweep (a dark pair
+    per bright exposure) and an illumination sweep (one exposure, the
+    illumination varied, dark pairs at that exposure shared by every step).
+    """
     b, d = steps.bright, steps.dark
-    if len(b) != len(d) or not np.allclose(b["texp_s"], d["texp_s"], rtol=1e-9):
-        raise TableError(
-            f"{steps.source}: bright and dark steps must pair up by exposure ({len(b)} bright, {len(d)} dark)"
-        )
+    dark_t = d["texp_s"].to_numpy()
+    match = []
+    for i, t in enumerate(b["texp_s"].to_numpy()):
+        same = np.flatnonzero(np.isclose(dark_t, t, rtol=1e-9, atol=0))
+        if same.size == 0:
+            raise TableError(
+                f"{steps.source}: bright step {i + 1} at exposure {t * 1e3:g} ms has no dark image pair at that "
+                f"exposure (dark exposures: {sorted({round(v * 1e3, 6) for v in dark_t})} ms); EMVA 1288 subtracts "
+                "the dark signal at the same exposure"
+            )
+        # the dark pair at this exposure; several (an exposure sweep repeated) pair up in order
+        match.append(int(same[min(int(np.sum(np.isclose(b["texp_s"].to_numpy()[:i], t))), same.size - 1)]))
+    d = d.iloc[match].reset_index(drop=True)
     return pd.DataFrame(
         {
             "texp_s": b["texp_s"].to_numpy(),
@@ -83,6 +98,11 @@ def _aligned(steps: Steps) -> pd.DataFrame:
             "n_pixels": b["n_pixels"].to_numpy(),
         }
     )
+
+
+def _dark_exposures(steps: Steps) -> int:
+    """Distinct exposure times of the dark steps: a dark current needs at least two."""
+    return int(np.unique(np.round(steps.dark["texp_s"].to_numpy(), 12)).size)
 
 
 def _ranges(c: pd.DataFrame) -> dict:
@@ -113,9 +133,12 @@ def standard_method(steps: Steps) -> tuple[dict, dict]:
     k = _through_origin(x_sig[s], (c["s2_y"] - c["s2_dark"]).to_numpy()[s])
     resp = _through_origin(c["photons"].to_numpy()[s], x_sig[s])
     s2_dark0 = float(c["s2_dark"].iloc[0])
-    t = c["texp_s"].to_numpy()
-    i_mean_dn = np.polyfit(t, c["mu_dark"].to_numpy(), 1)[0]
-    i_var_dn2 = np.polyfit(t, c["s2_dark"].to_numpy(), 1)[0]
+    if _dark_exposures(steps) >= 2:  # the dark current is the slope of the dark signal in exposure time
+        t, dk = steps.dark["texp_s"].to_numpy(), steps.dark
+        i_mean_dn = np.polyfit(t, dk["mean_dn"].to_numpy(), 1)[0]
+        i_var_dn2 = np.polyfit(t, dk["var_dn2"].to_numpy(), 1)[0]
+    else:  # one exposure time determines no slope: not determined, not a number with an interval
+        i_mean_dn = i_var_dn2 = np.nan
     u_p_sat = float(c["photons"].iloc[r["index_u_ysat"]])
     # relative deviations: the line minimises sum(((y - fit) / y)^2) (np.polyfit's w multiplies residuals)
     xl, yl = c["photons"].to_numpy()[_lin(r)], x_sig[_lin(r)]
@@ -250,9 +273,13 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
         n_pix = 640 * 480  # reduced tables carry no pixel count: assume the full VGA frame of the data set
     s2_d0 = float(c["s2_dark"].iloc[0])
     s2_dark = (n_pix - 1) * s2_d0 / rng.chisquare(n_pix - 1, n_draws)
-    t = c["texp_s"].to_numpy()
-    i_mean = _line_posterior(t, c["mu_dark"].to_numpy(), np.ones_like(t), n_draws, rng)[:, 0] / k
-    i_var = _line_posterior(t, c["s2_dark"].to_numpy(), np.ones_like(t), n_draws, rng)[:, 0] / k**2
+    if _dark_exposures(steps) >= 2:
+        dk = steps.dark
+        t = dk["texp_s"].to_numpy()
+        i_mean = _line_posterior(t, dk["mean_dn"].to_numpy(), np.ones_like(t), n_draws, rng)[:, 0] / k
+        i_var = _line_posterior(t, dk["var_dn2"].to_numpy(), np.ones_like(t), n_draws, rng)[:, 0] / k**2
+    else:
+        i_mean = i_var = np.full(n_draws, np.nan)
     lin = _line_posterior(c["photons"].to_numpy()[_lin(r)], sig[_lin(r)], 1.0 / sig[_lin(r)] ** 2, n_draws, rng)
     le_min, le_max = _linearity_at_extremes(c, r, point, lin[:, 0], lin[:, 1])
     draws = _quantities(k, resp, s2_dark, i_mean, i_var, point["u_p_sat"], le_min, le_max)
@@ -261,8 +288,12 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
         s2_bright, s2_dark_sp = _spatial(steps.stack)
         scale = lambda v: (n_pix - 1) * max(v, 0.0) / rng.chisquare(n_pix - 1, n_draws)  # noqa: E731
         draws.update(_nonuniformity(steps.stack, k, scale(s2_bright), scale(s2_dark_sp)))
-    lo, hi = np.quantile(draws["dark_current_difference"], [0.025, 0.975])
-    compatible = bool(lo <= 0.0 <= hi)
+    determined = _dark_exposures(steps) >= 2
+    if determined:
+        lo, hi = np.quantile(draws["dark_current_difference"], [0.025, 0.975])
+        compatible = bool(lo <= 0.0 <= hi)
+    else:
+        compatible = None
     units = {
         "K": "DN/e-",
         "R": "DN/photon",
@@ -284,7 +315,7 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
     }
     rows = []
     for name, d in draws.items():
-        q = np.quantile(d, [0.025, 0.5, 0.975])
+        q = np.quantile(d, [0.025, 0.5, 0.975]) if np.all(np.isfinite(d)) else np.full(3, np.nan)
         rows.append(
             {
                 "quantity": name,
@@ -293,10 +324,17 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
                 "median": q[1],
                 "q2.5": q[0],
                 "q97.5": q[2],
+                "note": "" if np.all(np.isfinite(d)) else _undetermined(name),
             }
         )
     curves = c.assign(signal=sig, var_signal=dvar)
     return Characterization(pd.DataFrame(rows), point, draws, curves, r, compatible, steps.source)
+
+
+def _undetermined(name: str) -> str:
+    if name.startswith("dark_current"):
+        return "not determined: dark frames at one exposure time only (a dark current is a slope in time)"
+    return "not determined by these data"
 
 
 def plot_curves(res: Characterization, path) -> None:

@@ -142,3 +142,42 @@ def test_characterize_cli(tmp_path):
     k = next(q for q in js["quantities"] if q["quantity"] == "K")
     assert k["standard"] == pytest.approx(0.28006, rel=1e-4) and js["dark_current_compatible"] is True
     assert (tmp_path / "c" / "photon_transfer.png").stat().st_size > 10_000
+
+
+def test_illumination_sweep_layout_and_undetermined_dark_current():
+    """The standard's other layout: one exposure time, the illumination varied, one dark pair.  K and QE
+    come out as usual (truth 0.28 DN/e-, 45 %); a dark current, a slope in time, is reported as not
+    determined (no number, no interval) rather than as a fit through one point."""
+    import dataclasses
+
+    from bayescal.emva import simulate_steps
+
+    sweep = simulate_steps(seed=4)
+    t0 = float(sweep.bright["texp_s"].iloc[-1])
+    bright = sweep.bright.assign(texp_s=t0)
+    dark = sweep.dark.iloc[[-1]].reset_index(drop=True)
+    steps = dataclasses.replace(sweep, bright=bright, dark=dark)
+    res = characterize(steps, seed=1)
+    t = res.table.set_index("quantity")
+    for name, truth in (("K", 0.28), ("QE", 45.0)):
+        assert t.loc[name, "q2.5"] <= truth <= t.loc[name, "q97.5"], (name, t.loc[name])
+    for name in ("dark_current_mean", "dark_current_var", "dark_current_difference"):
+        assert np.isnan(t.loc[name, "median"]) and np.isnan(t.loc[name, "standard"])
+        assert "one exposure time" in t.loc[name, "note"]
+    assert res.dark_current_compatible is None
+    # a bright exposure with no dark pair at that exposure is refused, naming it
+    with pytest.raises(TableError, match="bright step 1 at exposure"):
+        characterize(dataclasses.replace(steps, bright=bright.assign(texp_s=t0 * 2)))
+
+
+def test_bit_depth_of_a_reduced_table(tmp_path):
+    """An 8-bit camera's steps table is read as 8-bit (full scale 255), not guessed as 12-bit."""
+    from bayescal.emva import load_steps
+
+    rows = ["kind,texp_ns,photons_per_pixel,n_images,mean_DN,var_temporal_DN2"]
+    rows += [f"bright,{1000 * i},{100 * i},2,{10 + 24 * i},{2 + 5 * i}" for i in range(1, 11)]
+    rows += [f"dark,{1000 * i},0,2,10,2" for i in range(1, 11)]
+    (tmp_path / "s.csv").write_text("\n".join(rows) + "\n")
+    assert load_steps(tmp_path / "s.csv").bits == 8
+    (tmp_path / "b.csv").write_text("\n".join([rows[0] + ",bits"] + [r + ",10" for r in rows[1:]]) + "\n")
+    assert load_steps(tmp_path / "b.csv").bits == 10
