@@ -1,4 +1,4 @@
-"""Assemble a numpyro model from components (DESIGN.md section 3).
+"""Assemble a numpyro model from components (docs/architecture.md, section 3).
 
 The model function is built once per *structure* (the components, which are
 hashable) and takes the data pytree as its only argument, so one compiled

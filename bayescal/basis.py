@@ -3,7 +3,7 @@
 The response is fitted on the scaled linear signal ``v`` in [0, 1] with
 nonlinearity terms built from shifted Legendre polynomials,
 ``p_k(v) = P_k(2 v - 1) - P_k(-1)``, which keeps the normal equations well
-conditioned (DESIGN.md section 5).  Each ``p_k`` vanishes at ``v = 0``, so the
+conditioned (docs/architecture.md, section 5).  Each ``p_k`` vanishes at ``v = 0``, so the
 gain ``G`` is exactly the small-signal slope and the map from ``(G, eta)`` to
 the polynomial is one-to-one (with ``P_k`` itself, ``G (1 - eta)`` and ``eta
 G^2`` admit two solutions and the posterior is bimodal).  Reports convert to

@@ -1,7 +1,7 @@
 """Fit many datasets of one model structure together: replications, sensors, SBC.
 
 :func:`fit_many` shares one compilation across datasets of one shape
-(DESIGN.md section 4): the MAP searches run as one ``jax.vmap``-ed program
+(docs/architecture.md, section 4): the MAP searches run as one ``jax.vmap``-ed program
 over batches of datasets, every (dataset, chain) NUTS chain runs the same
 compiled chain program on one thread pool, and R-hat/ESS are computed by
 arviz for all datasets in one vectorised call.  Each dataset gets exactly

@@ -1,6 +1,6 @@
 """A fitted camera as posterior draws in physical units: the input of predictions.
 
-The measurement equation (DESIGN.md section 2; seeds 000 eq. 3-5, 002 eq.
+The measurement equation (docs/architecture.md, section 2; seeds 000 eq. 3-5, 002 eq.
 11-12) evaluated per posterior draw ``s``::
 
     DN = dark_s(channel, g, t) + sum_k A_sk x^k,   x = L t M g / (t_ref M_ref g_ref)

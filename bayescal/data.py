@@ -4,7 +4,7 @@ Everything the model sees is dimensionless and O(1): DN is divided by full
 scale, the effective stimulus ``x = L t M g / (t_ref M_ref g_ref)`` (the
 radiance that would give the same signal at the reference setting; seeds 000
 section 5.3 and 002 eq. 11) by its largest value, exposure by its largest
-value (DESIGN.md section 5).  Only shapes enter the compiled model, so
+value (docs/architecture.md, section 5).  Only shapes enter the compiled model, so
 datasets of one shape share one compilation.
 """
 

@@ -2,7 +2,7 @@
 
 Each component reports its own quantities; this module adds the reference
 offset ``A0`` and folds the sphere's common scale into the coefficients
-(DESIGN.md section 4), giving the papers' table ``DN = A0 + A1 L + ...`` at
+(docs/architecture.md, section 4), giving the papers' table ``DN = A0 + A1 L + ...`` at
 the reference setting both relative to the sphere (comparable with least
 squares on the same sphere readings) and absolute.
 """

@@ -1,6 +1,6 @@
 """Convergence diagnostics with arviz; a failed fit is reported as failed.
 
-Thresholds (DESIGN.md section 4, issue acceptance): no divergences, R-hat
+Thresholds (docs/architecture.md, section 4, issue acceptance): no divergences, R-hat
 <= 1.01, bulk and tail ESS >= ``min_ess`` for every sampled and reported
 quantity.
 """

@@ -3,7 +3,7 @@
 ``fit(table, spec, backend)`` assembles the model, finds a data-driven start,
 and runs ``nuts`` (default), ``laplace``, ``emcee`` or ``lsq``.  The
 Bayesian backends return draws of the same reported quantities, so their
-speed and error can be compared (DESIGN.md section 4).  The least-squares
+speed and error can be compared (docs/architecture.md, section 4).  The least-squares
 baseline is always computed beside them.
 """
 
@@ -231,7 +231,7 @@ def fit(
     Parameters
     ----------
     backend : {"nuts", "laplace", "emcee", "lsq"}
-        Inference method (DESIGN.md section 4).
+        Inference method (docs/architecture.md, section 4).
     seed : int
         Seed of every random number (chains, jitter, sphere-scale draws).
     progress : callable, optional

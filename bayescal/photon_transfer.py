@@ -1,6 +1,6 @@
 """EMVA 1288 characterisation: the standard's point estimates beside Bayesian posteriors.
 
-Photon transfer (EMVA 1288 release 3.0, DESIGN.md section 2)::
+Photon transfer (EMVA 1288 release 3.0, docs/architecture.md, section 2)::
 
     s2_y - s2_y.dark = K (mu_y - mu_y.dark)          (system gain K, DN/e-)
     mu_y - mu_y.dark = R mu_p,   QE = R / K          (responsivity R, DN/photon)

@@ -1,6 +1,6 @@
 """Simulate calibration measurements of a camera with known truth.
 
-The forward model is the measurement equation of DESIGN.md section 2, with
+The forward model is the measurement equation of docs/architecture.md, section 2, with
 everything the real bench adds: the sphere's common scale error and per-level
 errors shared across channels, read/shot/quantisation noise averaged over
 frames and pixels, excess scatter, partial and full clipping at full scale
@@ -143,7 +143,7 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
 
 
 def _camera(truth: Truth, spec: ModelSpec, ch, stimulus, t, g, m, temperature=None):
-    """Expected DN, signal and per-pixel temporal variance of the true camera (DESIGN.md section 2)."""
+    """Expected DN, signal and per-pixel temporal variance of the true camera (docs/architecture.md, section 2)."""
     x = effective_stimulus(stimulus, t, g, m, spec)
     signal = np.array([np.polyval(np.r_[truth.response[c][::-1], 0.0], xi) for c, xi in zip(ch, x, strict=True)])
     g_rel = g / spec.reference.gain

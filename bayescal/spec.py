@@ -3,7 +3,7 @@
 A spec is a small tree of frozen dataclasses, loadable from TOML (``models/``)
 or built in Python.  Turning a component off (``order = 1``,
 ``per_level_rel = 0``, ``excess_dn = 0``, ``censor = false``) removes its
-parameters from the model: model only what the scene needs (DESIGN.md
+parameters from the model: model only what the scene needs (docs/architecture.md
 section 1).
 """
 
@@ -55,7 +55,7 @@ class ResponseSpec:
 
     ``order`` 1 is linear; order p adds a relative nonlinearity of degree p-1
     in the linear signal (fraction of full scale), ``DN = S (1 + n(S))`` with
-    ``S = G x`` (DESIGN.md section 2).  ``pooled`` partially pools the
+    ``S = G x`` (docs/architecture.md, section 2).  ``pooled`` partially pools the
     nonlinearity across channels (it is a property of the sense node and ADC,
     shared by all colours); ``gain_prior = "pooled"`` also pools the
     per-channel log gains.  Pooling is off by default: NUTS does not yet
@@ -63,7 +63,7 @@ class ResponseSpec:
     degenerates in the pooling scales; a fit reports R-hat ~2 and fails
     loudly), and Laplace only warns.
 
-    Priors, in the model's scaled units (DESIGN.md section 5): the gain ``G``
+    Priors, in the model's scaled units (docs/architecture.md, section 5): the gain ``G``
     is the linear signal at the brightest stimulus of the table as a
     fraction of full scale, log-normal with median ``gain_prior_median``
     and log-sd ``gain_prior_log_sd`` (``"normal"``: Normal(median,
@@ -138,7 +138,7 @@ class SphereSpec:
 
     ``common_rel``: relative standard uncertainty of the sphere's scale,
     common to every level; it is exactly degenerate with the gains and is
-    folded in after fitting (DESIGN.md section 4).  ``per_level_rel``:
+    folded in after fitting (docs/architecture.md, section 4).  ``per_level_rel``:
     relative standard uncertainty of each level's reading, shared by all
     channels and settings at that level, sampled non-centred (0 turns it off;
     a ``radiance_u_rel`` column overrides it per level).
@@ -186,7 +186,7 @@ class SettingsSpec:
 
 @dataclass(frozen=True)
 class InferenceSpec:
-    """Sampler settings and the thresholds a fit must pass (DESIGN.md section 4).
+    """Sampler settings and the thresholds a fit must pass (docs/architecture.md, section 4).
 
     ``laplace_integrate``: the ``laplace`` backend integrates the excess
     scatter numerically (one-dimensional nested Laplace) instead of fixing it

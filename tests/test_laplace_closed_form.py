@@ -17,6 +17,7 @@ def test_linear_gaussian_posterior(seed000):
         noise={"kind": "measured", "excess_dn": 0.0},
         sphere={"per_level_rel": 0.0},
         saturation={"censor": False},
+        settings={"gain_tolerance": 0.0, "exposure_tolerance": 0.0},  # exact settings: linear in every parameter
     )
     table = bc.simulate(spec, design, seed=4).table
     keep = table.frame["dn_mean"] < spec.full_scale - 0.5

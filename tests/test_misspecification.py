@@ -44,10 +44,10 @@ def test_bench_does_not_import_the_model():
 
 
 def test_gain_steps_off_nominal_are_covered(spec):
-    """Gain steps within +-8 % of their labels: 12 datasets, 72 coefficient intervals, none flagged needed.
-    At nominal 95 % coverage P(hits < 60 of 72) < 1e-3 even with the channels of a dataset correlated."""
+    """Gain steps within +-8 % of their labels: 8 datasets, 48 coefficient intervals, at most one fit flagged.
+    At nominal 95 % coverage P(hits < 40 of 48) ~ 3e-3 (binomial; the channels of a dataset share its sphere)."""
     hits, flagged = [], 0
-    for seed in range(12):
+    for seed in range(8):
         frame, real = simulate_bench(departures=Departures(gain_step_error=0.08), seed=500 + seed)
         fit = _fit(spec, frame, seed)
         flagged += not fit.ok
@@ -56,7 +56,7 @@ def test_gain_steps_off_nominal_are_covered(spec):
             lo, hi = np.quantile(rel[:, ci, :2], [0.025, 0.975], axis=0)
             t = real.true_coefficients(c, relative=True)[:2]
             hits += list((lo <= t) & (t <= hi))
-    assert flagged <= 1 and np.mean(hits) >= 60 / 72, (flagged, np.mean(hits))
+    assert flagged <= 1 and np.sum(hits) >= 40, (flagged, np.mean(hits))
 
 
 def test_everything_at_once_is_flagged(spec):

@@ -39,7 +39,7 @@ def test_report_numbers_equal_summary(report_dir):
     g1 = params["A_abs[G, 1]"]
     for value in (g1["mean"], g1["q2.5"], g1["q97.5"]):
         assert f"{value:.5g}" in html
-    assert html.count("data:image/png;base64,") == 4
+    assert html.count("data:image/png;base64,") == 5  # response, residuals, misfit checks, budget, traces
     md = (report_dir / "report.md").read_text()
     assert f"{g1['mean']:.5g}" in md
     # the budget's shares add up, and the sphere dominates bright pixels (3 % vs sub-percent noise)

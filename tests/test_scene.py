@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -12,11 +13,21 @@ from bayescal.scene import choose_for_scene
 
 
 def _calibrations(spec, design, orders, seed=3):
+    # the simulated camera's settings are exact; free setting factors (5 % tolerance) trade off against the
+    # higher-order terms and move order 2 to 0.22 sd of order 4, which is not the question here
+    spec = spec.replace(settings={"gain_tolerance": 0.0, "exposure_tolerance": 0.0})
     table = bc.simulate(spec, design, seed=seed).table
     out = {}
     for order in orders:
-        result = bc.fit(table, spec.replace(response={"order": order}), "laplace", seed=1)
-        assert result.ok, result.diagnostics.verdict
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", bc.FitFailedWarning)
+            result = bc.fit(table, spec.replace(response={"order": order}), "laplace", seed=1)
+        curved = any(c[1] != 0 for c in design.truth.response.values())
+        if order == 1 and curved:  # a straight line on a curved camera: the misfit checks must say so
+            verdict = result.diagnostics.verdict
+            assert not result.ok and ("response shape" in verdict or "noise floor" in verdict), verdict
+        else:
+            assert result.ok, result.diagnostics.verdict
         out[f"order {order}"] = bc.Calibration.from_fit(result)
     return out
 
@@ -34,13 +45,12 @@ def _scene(lo, hi, seed=0):
 
 def test_quadratic_camera_needs_order_two(quadratic):
     """Order 1 misplaces the low end by several times the 0.1 sd tolerance (its offset absorbs the
-    curvature: 1.6 sd with exact settings, 0.49 sd once the exposure factors take up part of it);
-    order 2 matches the order-4 inversion to < 0.1 sd over dim and bright scenes, and is chosen."""
+    curvature); order 2 matches the order-4 inversion to < 0.1 sd over dim and bright scenes, and is chosen."""
     for lo, hi in ((60, 600), (60, 3900)):
         choice = choose_for_scene(quadratic, _scene(lo, hi), cfa="RGGB", repeats=1)
         t = choice.table
         assert choice.full == "order 4"
-        assert t.loc["order 1", "max_dev_sd"] > 3 * 0.1
+        assert t.loc["order 1", "max_dev_sd"] > 0.5
         assert t.loc["order 2", "max_dev_sd"] < 0.1
         assert choice.chosen == "order 2"
         for dn_lo, dn_hi, n, _ in choice.dn_range.values():

@@ -1,7 +1,7 @@
 """Model components: each a small object with a prior, a forward function and
 a ``physical`` method turning its scaled draws into reported quantities.
 
-Roles in the measurement equation (DESIGN.md section 2)::
+Roles in the measurement equation (docs/architecture.md, section 2)::
 
     DN = offset(gain, t) + S(x * (1 + e_level) * f_gain f_exposure f_tdi) (clipped at full scale) + noise
 

@@ -1,12 +1,12 @@
 """Integrating-sphere radiance errors: common scale (folded in) and per-level errors.
 
-Physics: seed 002 section 4.3 (sphere uncertainty below 3 %), DESIGN.md
+Physics: seed 002 section 4.3 (sphere uncertainty below 3 %), docs/architecture.md
 section 2.  Every channel and setting at one sphere level sees the same
 level error, so the errors are shared across channels and sampled
 non-centred.  The common scale multiplies every stimulus and is exactly
 degenerate with the gains: it is not sampled but folded in afterwards
 (:func:`fold_common_scale`), exact for a response whose prior is flat on the
-data's scale (DESIGN.md section 4).
+data's scale (docs/architecture.md, section 4).
 """
 
 from __future__ import annotations

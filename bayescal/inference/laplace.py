@@ -3,7 +3,7 @@
 The mode is found by BFGS in the unconstrained space; the Gaussian's
 precision is the exact Hessian of the negative log posterior there (jax).
 For a linear-Gaussian model (linear response, known noise, normal priors)
-this *is* the posterior (DESIGN.md section 4).
+this *is* the posterior (docs/architecture.md, section 4).
 """
 
 from __future__ import annotations

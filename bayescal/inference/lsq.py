@@ -5,7 +5,7 @@ the goodness-of-fit numbers the papers quote (R^2, SSE, RMSE) and classical
 t confidence intervals.  Solved by Householder QR on a column-equilibrated
 Vandermonde matrix of the scaled abscissa ``u = x / max|x|``; coefficients
 are unscaled exactly (``A_k = c_k / h^k``, no cancellation), which
-reproduces NIST StRD certified values (DESIGN.md section 5).
+reproduces NIST StRD certified values (docs/architecture.md, section 5).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Nonlinear least squares (optimistix Levenberg-Marquardt) with the Gaussian at the optimum.
 
 For saturating or otherwise nonlinear sensor responses fitted the classical
-way (DESIGN.md section 4, NIST StRD nonlinear problems).  Parameters are
+way (docs/architecture.md, section 4, NIST StRD nonlinear problems).  Parameters are
 rescaled by their starting values so the solver sees O(1) unknowns; the
 residual function is jitted once per model function.  The covariance is
 ``s^2 (J^T J)^-1`` with ``s^2 = SSE / (n - p)`` -- the Laplace approximation

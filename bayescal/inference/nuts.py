@@ -2,7 +2,7 @@
 
 One chain is one jitted program (init, warmup and draws in a single
 ``lax.scan`` pair) built once per model structure, with the data as an
-argument (DESIGN.md section 4: a naive ``MCMC.run`` re-traces and recompiles
+argument (docs/architecture.md, section 4: a naive ``MCMC.run`` re-traces and recompiles
 on each call).  Chains run concurrently on a thread pool: XLA releases the
 GIL, so the chains use every core.  Chains are deliberately *not* vmapped: a
 vmapped NUTS turns each tree-building ``cond`` into a ``select`` and runs

@@ -1,4 +1,4 @@
-"""One compiled program per model structure (DESIGN.md section 4).
+"""One compiled program per model structure (docs/architecture.md, section 4).
 
 A :class:`Program` holds the model's log density in the *flat unconstrained*
 space as jitted functions of ``(z, data)``: data are arguments, never
