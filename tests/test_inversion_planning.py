@@ -11,7 +11,7 @@ import pytest
 import bayescal as bc
 
 #: calibrations in the default run; the slow suite uses 160 (README numbers)
-N_CAL = 80
+N_CAL = 60
 VALUES_PER_CAL = 5
 EXPOSURES = [0.001, 0.002, 0.004, 0.008, 0.016]
 
@@ -65,9 +65,9 @@ def test_inversion_coverage_is_nominal(trials):
         f"bayescal {cover:.3f} (median relative width {np.median(trials['width']):.3f}); "
         f"least-squares plug-in {lsq_cover:.3f} (median relative width {np.median(trials['lsq_width']):.3f})"
     )
-    # 400 readings in 80 clusters (one sphere draw each): sd of the rate ~0.016 at 0.95 -> 3 sd band
-    assert trials["hit"].size >= 350
-    assert 0.90 <= cover <= 0.99
+    # 300 readings in 60 clusters (one sphere draw each): sd of the rate ~0.018 at 0.95 -> 3 sd band
+    assert trials["hit"].size >= 260
+    assert 0.89 <= cover <= 0.99
     assert lsq_cover < cover
 
 
