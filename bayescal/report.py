@@ -168,8 +168,13 @@ def _lsq_at_reference(lsq: pd.DataFrame, cal: Calibration, summary: dict) -> pd.
 def _examples(cal: Calibration, seed: int) -> dict[str, pd.DataFrame]:
     ref = Setting(cal.reference.exposure_s, cal.reference.gain, cal.reference.tdi_stages)
     longer = Setting(cal.reference.exposure_s * 2.5, cal.reference.gain, cal.reference.tdi_stages)
-    mid = cal.calibrated.max_effective / 4 if np.isfinite(cal.calibrated.max_effective) else 1.0
-    pred = predict(cal, [mid], longer, seed=seed)
+    preds = []
+    for ch in cal.channels:  # a scene that reads about 40 % of full scale at the longer exposure, per channel
+        dark = float(np.median(cal.dark_dn(ch, ref)))
+        target = dark + 0.4 * (cal.full_scale - dark) / 2.5
+        stim = float(np.nanmedian(invert(cal, np.array([target]), ch, ref, seed=seed).to_frame()["median"]))
+        preds.append(predict(cal, [stim if np.isfinite(stim) and stim > 0 else 1.0], longer, [ch], seed=seed))
+    pred = pd.concat(preds, ignore_index=True)
     rows = []
     for ch in cal.channels:
         dark = float(np.median(cal.dark_dn(ch, ref)))
@@ -229,35 +234,51 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
         ax.axhline(cal.full_scale, color="0.5", lw=0.6)
         ax.set_ylim(0, cal.full_scale * 1.06)
         ax.set(title=f"channel {ch}", xlabel=f"{cal.stimulus} ({cal.unit})", ylabel="mean DN")
-        ax.legend(fontsize=7, loc="upper left")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
     fig.suptitle(
-        "posterior median (line), 95 % credible (dark band) and predictive (light band); "
-        "dashed: least squares; x: censored (clipped)",
+        "posterior median (line), 95 % credible and predictive bands (too narrow to see at this scale: the "
+        "residual panels below show them in sd units); dashed: least squares; x: censored (clipped)",
         fontsize=9,
     )
+    fig.tight_layout(rect=(0, 0.1, 1, 0.95))
     return _png(fig)
 
 
 def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
+    """Residuals in predictive sds (a band of +-2 is what the model allows), one colour per setting."""
     import matplotlib.pyplot as plt
 
     chans = list(cal.channels)
-    fig, axes = plt.subplots(1, len(chans), figsize=(4.6 * len(chans), 3.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(chans), figsize=(4.6 * len(chans), 3.4), squeeze=False, sharey=True)
+    rng = np.random.default_rng(1)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    settings = _settings(frame)
     for ax, ch in zip(axes[0], chans, strict=True):
-        rows = frame[(frame.channel == ch) & (frame.dn_mean < cal.saturation_dn)]
-        res, x = [], []
-        for r in rows.itertuples():
-            s = Setting(r.exposure_s, r.gain, getattr(r, "tdi_stages", 1.0))
-            mean = cal.expected_dn(ch, r.stimulus, s, relative=True)
-            res.append(r.dn_mean - float(np.median(mean)))
-            x.append(r.stimulus)
+        ax.axhspan(-2, 2, color="0.85", lw=0)
         ax.axhline(0, color="0.5", lw=0.6)
-        ax.plot(x, res, "o", ms=3.5)
-        ax.set(
-            title=f"channel {ch}: data - posterior median (sphere level errors not removed)",
-            xlabel=f"{cal.stimulus} ({cal.unit})",
-            ylabel="DN",
-        )
+        for k, (t, g, m) in enumerate(settings):
+            rows = frame[
+                (frame.channel == ch)
+                & np.isclose(frame.exposure_s, t)
+                & np.isclose(frame.gain, g)
+                & (frame["stimulus"] > 0)
+                & (frame.dn_mean < cal.saturation_dn)
+            ]
+            if rows.empty:
+                continue
+            s = Setting(t, g, m)
+            n_avg = (rows.get("n_frames", 1) * rows.get("n_pixels", 1)).to_numpy(dtype=float)
+            stim = rows["stimulus"].to_numpy()
+            pred = cal.sample_dn(ch, stim, s, rng, n_avg=float(np.median(n_avg)), relative=True)
+            z = (rows["dn_mean"].to_numpy() - np.median(pred, axis=0)) / np.std(pred, axis=0)
+            label = f"{t:g} s, gain {g:g}" + (f", TDI {m:g}" if m != 1 else "")
+            ax.plot(stim, z, "o", ms=3.5, color=colours[k % len(colours)], label=label)
+        ax.set(title=f"channel {ch}", xlabel=f"{cal.stimulus} ({cal.unit})")
+    axes[0][0].set_ylabel("(data - model) / predictive sd")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     return _png(fig)
 
 
@@ -402,25 +423,42 @@ window.addEventListener('load', function () {
 """
 
 
+def _diagnostics_row(backend: str, d: dict) -> dict:
+    """The diagnostics that apply to the backend used (no divergences for a Laplace fit)."""
+    misfit = d.get("misfit") or {}
+    row: dict = {}
+    if backend in ("nuts", "emcee"):
+        keys = ("divergences", "max_rhat", "min_ess_bulk", "min_ess_tail") if backend == "nuts" else ("min_ess_bulk",)
+        row.update({k: d.get(k) for k in keys})
+        if d.get("retried"):
+            row["retried"] = d["retried"]
+    else:
+        row.update(map_converged=d.get("map_converged"), hessian_positive_definite=d.get("hessian_positive_definite"))
+    row["largest |residual| (pred. sd)"] = d.get("max_abs_residual_z")
+    if "excess_ratio" in misfit:
+        row["excess scatter / noise floor"] = misfit["excess_ratio"]
+    return row
+
+
 def _html(data, coef, lsq_ref, budget, examples, figures) -> str:
     d = data["diagnostics"]
     failed = data["status"] != "ok"
+    problems = "".join(f"<li>{html.escape(p)}</li>" for p in d.get("problems", []))
     banner = (
-        f'<div class="failed" id="verdict">FIT FAILED: {html.escape(data["verdict"])}. Do not use these numbers.</div>'
+        f'<div class="failed" id="verdict">FIT FAILED. Do not use these numbers.<ul>{problems}</ul></div>'
         if failed
-        else f'<div class="ok" id="verdict">Diagnostics passed ({html.escape(data["verdict"])}).</div>'
+        else '<div class="ok" id="verdict">Diagnostics passed: the chains converged and the model fits its data '
+        "to within their noise.</div>"
     )
     img = lambda key, alt: f'<img alt="{alt}" src="data:image/png;base64,{figures[key]}">'  # noqa: E731
-    diag = pd.DataFrame(
-        [{k: v for k, v in d.items() if k in ("divergences", "max_rhat", "min_ess_bulk", "min_ess_tail")}]
-    )
+    diag = pd.DataFrame([_diagnostics_row(data["backend"], d)])
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
 <title>bayescal report: {html.escape(data["model"]["name"])}</title><style>{_CSS}</style></head>
 <body>
 <h1>Calibration report: {html.escape(data["model"]["name"])}</h1>
-<p>Backend <b>{data["backend"]}</b>, seed {data["seed"]}; components:
-{html.escape(json.dumps(data["model"]["components"]))}</p>
+<p>Backend <b>{data["backend"]}</b>, seed {data["seed"]}. The model:</p>
+<ul class="components">{"".join(f"<li>{html.escape(c)}</li>" for c in data["model"]["components"])}</ul>
 {banner}
 <h2>Diagnostics</h2>
 {_html_table(diag)}
