@@ -92,16 +92,7 @@ class Program:
 
 def program_for(model: CalibrationModel) -> Program:
     """The cached program of ``model``'s structure (built on first use)."""
-    key = (model.parts, model.layout.shape_key, _shape_key(model.data))
-    program = _CACHE.get(key)
-    if program is None:
-        program = _build(numpyro_model(model.parts), model.data)
-        _CACHE[key] = program
-        if len(_CACHE) > _MAX_PROGRAMS:
-            _CACHE.popitem(last=False)
-    else:
-        _CACHE.move_to_end(key)
-    return program
+    return program_of(numpyro_model(model.parts), model.data)
 
 
 def program_of(model: Callable, example, obs: str = "obs") -> Program:
