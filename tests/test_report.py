@@ -84,7 +84,8 @@ def test_report_renders_in_headless_chromium(report_dir):
         [browser, *flags, "--dump-dom", url], check=True, capture_output=True, text=True, timeout=120
     ).stdout
     # every embedded figure decoded (the page's own check after load), key numbers present in the rendered DOM
-    assert re.search(r'data-images="4/4"', dom), "broken or missing images"
+    n_images = (report_dir / "report.html").read_text().count("data:image/png;base64,")
+    assert n_images == 5 and re.search(rf'data-images="{n_images}/{n_images}"', dom), "broken or missing images"
     summary = json.loads((report_dir / "summary.json").read_text())
     g1 = next(p for p in summary["parameters"] if p["parameter"] == "A_abs[G, 1]")
     assert f"{g1['mean']:.5g}" in dom and "Diagnostics passed" in dom
