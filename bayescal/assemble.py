@@ -40,7 +40,7 @@ class Parts:
         n_levels = len(layout.levels)
         return cls(
             response=Response(spec.response, len(layout.channels)),
-            dark=Dark(spec.dark, len(layout.channels), len(layout.gain_values)),
+            dark=Dark(spec.dark, len(layout.channels), len(layout.gain_values), layout.dn_scale),
             noise=Noise(spec.noise, layout.dn_scale),
             sphere=Sphere(spec.sphere, n_levels, bool(np.any(level_sigma > 0))),
             saturation=Saturation(spec.saturation),
@@ -51,7 +51,11 @@ class Parts:
         """Human-readable list of what the model contains."""
         r, d, n, s = self.response, self.dark, self.noise, self.sphere
         items = [f"response: order {r.spec.order}" + (", pooled nonlinearity" if r.n_terms and r.spec.pooled else "")]
-        items.append(f"dark: {d.spec.gain_dependence}" + (", exposure slope" if d.spec.exposure_slope else ""))
+        items.append(
+            f"dark: {d.spec.gain_dependence}"
+            + (", exposure slope" if d.spec.exposure_slope else "")
+            + (", drift over the run" if d.spec.drift else "")
+        )
         items.append(
             f"noise: {n.spec.kind}" + (f", excess (scale {n.spec.excess_dn:g} DN)" if n.spec.excess_dn else "")
         )

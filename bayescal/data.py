@@ -43,6 +43,7 @@ class ModelData(NamedTuple):
     censored: jnp.ndarray  # bool, right-censored at the threshold
     threshold: jnp.ndarray  # scalar, censoring threshold / full scale
     temp: jnp.ndarray  # temperature - dark.temperature_ref_c (degC; 0 without a temperature model)
+    time: jnp.ndarray  # time_s / the run's duration (0 without a drift model): 0 at the start of the run
 
 
 @dataclass(frozen=True)
@@ -166,6 +167,15 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
     m_index = {m: i for i, m in enumerate(stages)}
     lit_gains = tuple(sorted(set(df.loc[~dark, "gain"])))
     f_index = {g: i for i, g in enumerate(lit_gains)}
+    time = np.zeros(len(df))
+    if spec.dark.drift:
+        if "time_s" not in df:
+            raise TableError(
+                "dark.drift = true needs a 'time_s' column (seconds since the start of the run, per row)",
+                column="time_s",
+            )
+        t = df["time_s"].to_numpy(dtype=float)
+        time = (t - t.min()) / max(float(np.ptp(t)), 1e-12)
     x_scale = float(np.max(x))
     t_scale = float(df["exposure_s"].max())
     data = ModelData(
@@ -185,6 +195,7 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
         censored=jnp.asarray(censored),
         threshold=jnp.asarray(threshold),
         temp=jnp.asarray(temp, dtype=float),
+        time=jnp.asarray(time, dtype=float),
     )
     layout = Layout(
         channels=channels,

@@ -96,6 +96,13 @@ class DarkSpec:
     about 7 degC), with ``T_d`` log-normal around ``doubling_c`` (relative sd
     ``doubling_rel_sd``); the table needs a ``temperature_c`` column.
 
+    ``drift``: the dark level drifts linearly over the measurement run (the
+    sensor warming up): ``offset + d * time``, one drift ``d`` (DN over the
+    whole run, prior Normal(0, ``drift_prior_dn``)) shared by every channel and
+    gain; needs a ``time_s`` column.  Offsets then refer to the start of the
+    run.  Without it a drift is absorbed by the dark slope and the setting
+    factors, and ``A0`` is silently biased (validation benchmark).
+
     Priors (fractions of full scale): each offset Normal(``offset_prior_mean``,
     ``offset_prior_sd``), each dark slope (per longest exposure of the table)
     Normal(0, ``slope_prior_sd``).
@@ -111,6 +118,8 @@ class DarkSpec:
     offset_prior_mean: float = 0.05
     offset_prior_sd: float = 0.25
     slope_prior_sd: float = 0.05
+    drift: bool = False
+    drift_prior_dn: float = 5.0
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ OPTIONAL_COLUMNS: dict[str, float | None] = {
     "level": None,
     "tdi_stages": 1.0,
     "temperature_c": None,
+    "time_s": None,
     "n_frames": 1.0,
     "n_pixels": 1.0,
     "dn_var": None,

@@ -30,6 +30,7 @@ class Dark:
     spec: DarkSpec
     n_channels: int
     n_gains: int
+    dn_scale: float = 1.0  # full scale (DN): the drift prior is stated in DN
 
     @property
     def proportional(self) -> bool:
@@ -60,6 +61,9 @@ class Dark:
                 t_d = numpyro.sample("T_d", dist.LogNormal(jnp.log(self.spec.doubling_c), self.spec.doubling_rel_sd))
                 slope = slope * jnp.exp2(data.temp / t_d)
             offset = offset + slope * data.t
+        if self.spec.drift:  # a linear drift over the run, common to every channel and gain
+            drift = numpyro.sample("drift", dist.Normal(0.0, self.spec.drift_prior_dn / self.dn_scale))
+            offset = offset + drift * data.time
         return offset
 
     def offset_dn(
@@ -96,6 +100,8 @@ class Dark:
             out["dark_slope"] = slope
         return out | self._doubling(draws)
 
-    @staticmethod
-    def _doubling(draws: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        return {"doubling_c": draws["T_d"]} if "T_d" in draws else {}
+    def _doubling(self, draws: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        out = {"doubling_c": draws["T_d"]} if "T_d" in draws else {}
+        if "drift" in draws:
+            out["dark_drift_dn"] = draws["drift"] * self.dn_scale
+        return out

@@ -163,7 +163,8 @@ def simulate_bench(
     """A measurement table (the file a lab would write) and the truth behind it.
 
     Columns: ``channel, radiance, exposure_s, gain, dn_mean, level, n_frames,
-    n_pixels``; ``radiance`` is the sphere's *nominal* reading, 0 for dark rows.
+    n_pixels, time_s``; ``radiance`` is the sphere's *nominal* reading, 0 for dark
+    rows; ``time_s`` when the row was measured.
     """
     cam = camera or BenchCamera()
     dep = departures or Departures()
@@ -204,6 +205,7 @@ def simulate_bench(
                 "level": f"L{li}" if li is not None else "dark",
                 "n_frames": cam.n_frames,
                 "n_pixels": cam.n_pixels,
+                "time_s": 30.0 * i,  # rows in the order measured, 30 s apart
             }
         )
     return pd.DataFrame(rows), real
