@@ -153,12 +153,9 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
     var_meas = df["dn_var"].to_numpy() / dn_scale**2 if "dn_var" in df else np.ones(len(df))
     temp = np.zeros(len(df))
     if spec.dark.temperature:
-        if "temperature_c" not in df:
-            raise TableError(
-                "dark.temperature = true needs a 'temperature_c' column (sensor temperature, degC)",
-                column="temperature_c",
-            )
-        temp = df["temperature_c"].to_numpy() - spec.dark.temperature_ref_c
+        temp = (
+            _needed(df, "temperature_c", "dark.temperature", "sensor temperature, degC") - spec.dark.temperature_ref_c
+        )
 
     # setting factors act on the stimulus: only settings seen with illumination get one (dark rows -> index 0)
     exposures = tuple(sorted(set(df.loc[~dark, "exposure_s"])))
@@ -169,12 +166,7 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
     f_index = {g: i for i, g in enumerate(lit_gains)}
     time = np.zeros(len(df))
     if spec.dark.drift:
-        if "time_s" not in df:
-            raise TableError(
-                "dark.drift = true needs a 'time_s' column (seconds since the start of the run, per row)",
-                column="time_s",
-            )
-        t = df["time_s"].to_numpy(dtype=float)
+        t = _needed(df, "time_s", "dark.drift", "seconds since the start of the run, per row")
         time = (t - t.min()) / max(float(np.ptp(t)), 1e-12)
     x_scale = float(np.max(x))
     t_scale = float(df["exposure_s"].max())
@@ -212,6 +204,13 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
         unit=table.unit,
     )
     return data, layout
+
+
+def _needed(df, column: str, option: str, meaning: str) -> np.ndarray:
+    """The values of a column that a spec option needs; a clear error when the table lacks it."""
+    if column not in df:
+        raise TableError(f"{option} = true needs a '{column}' column ({meaning})", column=column)
+    return df[column].to_numpy(dtype=float)
 
 
 def _check_levels_per_channel(df, dark: np.ndarray, saturated: np.ndarray, x: np.ndarray, spec: ModelSpec) -> None:

@@ -109,11 +109,11 @@ def test_held_out_exposures_cover_at_the_nominal_rate(spec):
 
 def test_dark_drift_is_covered_when_time_is_recorded(spec):
     """A dark level drifting by 3 DN over the run biases A0 (it is taken from dark frames measured last):
-    8 datasets, coverage of A0 and A1 below 0.3 without the drift component.  With ``dark.drift`` and the
+    6 datasets, coverage of A0 and A1 below 0.3 without the drift component.  With ``dark.drift`` and the
     bench's ``time_s`` column the drift is fitted (3.2 [2.4, 4.0] DN on the first dataset) and the
-    coefficients cover: >= 40 of 48 hits required (P < 3e-3 at nominal 95 %)."""
+    coefficients cover: >= 30 of 36 hits required (P ~ 3e-3 at nominal 95 %)."""
     hits = {False: [], True: []}
-    for seed in range(8):
+    for seed in range(6):
         frame, real = simulate_bench(departures=Departures(dark_drift_dn=3.0), seed=10_000 + seed)
         for drift in (False, True):
             fit = _fit(spec.replace(dark={"drift": drift}), frame, seed)
@@ -122,7 +122,7 @@ def test_dark_drift_is_covered_when_time_is_recorded(spec):
                 lo, hi = np.quantile(rel[:, ci, :2], [0.025, 0.975], axis=0)
                 t = real.true_coefficients(c, relative=True)[:2]
                 hits[drift] += list((lo <= t) & (t <= hi))
-    assert np.mean(hits[False]) < 0.3 and np.sum(hits[True]) >= 40, {k: np.mean(v) for k, v in hits.items()}
+    assert np.mean(hits[False]) < 0.3 and np.sum(hits[True]) >= 30, {k: np.mean(v) for k, v in hits.items()}
 
 
 def test_drift_needs_a_time_column(spec):
