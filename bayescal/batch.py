@@ -25,7 +25,18 @@ import xarray as xr
 from .assemble import CalibrationModel, build_model
 from .derived import physical_draws
 from .errors import SpecError
-from .fit import OUTLIER_Z, SAMPLED, Fit, _diagnose, _finish, _laplace_z, _nuts_stats, note_retry
+from .fit import (
+    OUTLIER_Z,
+    SAMPLED,
+    Fit,
+    _diagnose,
+    _finish,
+    _laplace_z,
+    _nuts_stats,
+    misfit_of,
+    note_retry,
+    row_summaries,
+)
 from .inference.laplace import LaplaceResult, laplace, laplace_many
 from .inference.lsq import lsq_baseline
 from .inference.nuts import NutsDraws, run_nuts_many
@@ -58,7 +69,7 @@ class FitBatch:
         Per dataset: ``divergences``, ``retried`` (chains rerun with smaller
         steps after divergences, see ``InferenceSpec.retry_target_accept``),
         ``max_rhat``, ``min_ess_bulk``, ``min_ess_tail``, ``map_ok``,
-        ``max_abs_residual_z`` and ``ok``.
+        ``max_abs_residual_z``, ``misfit`` (the misfit problems, empty when none), ``converged`` and ``ok``.
     timings : dict
         Wall seconds of the stages, for the whole batch.
     """
@@ -82,6 +93,13 @@ class FitBatch:
     def ok(self) -> np.ndarray:
         """Whether each dataset's fit passed its diagnostics."""
         return self.diagnostics["ok"].to_numpy()
+
+    @property
+    def converged(self) -> np.ndarray:
+        """Per dataset: the inference passed its checks (MAP, R-hat, ESS, divergences, outliers),
+        whatever the misfit checks say.  Datasets drawn from the model's own prior (SBC) may carry
+        an excess scatter far above the noise floor, which ``ok`` reports as misfit."""
+        return self.diagnostics["converged"].to_numpy()
 
     def physical(self, i: int) -> dict[str, np.ndarray]:
         """Dataset ``i``'s reported quantities (``gain``, ``A_abs``, ...), ``(chain, draw, ...)``,
@@ -222,8 +240,8 @@ def fit_models(
         stats = tuple({} for _ in models)
     timings[backend] = time.perf_counter() - t
     t = time.perf_counter()
-    draws, resid_z = _constrained(program, models, z)
-    diagnostics = _diagnostics(draws, stats, results, resid_z, backend, spec, extras)
+    draws, resid_z, misfits = _constrained(program, models, z)
+    diagnostics = _diagnostics(draws, stats, results, resid_z, backend, spec, extras, misfits)
     timings["diagnostics"] = time.perf_counter() - t
     return FitBatch(
         models=tuple(models),
@@ -240,31 +258,34 @@ def fit_models(
     )
 
 
-def _constrained(program: Program, models, z: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Sampled sites per dataset ``(dataset, chain, draw, ...)`` and each dataset's largest
-    posterior predictive |z| over its rows (the outlier check of :func:`bayescal.fit.fit`)."""
+def _constrained(program: Program, models, z: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, list]:
+    """Sampled sites per dataset ``(dataset, chain, draw, ...)``, each dataset's largest posterior
+    predictive |z| over its rows and its misfit problems (the checks of :func:`bayescal.fit.fit`)."""
     n, chains, draws, dim = z.shape
     out: dict[str, list] = {}
     worst = np.empty(n)
+    misfits = []
     for i, m in enumerate(models):
         sites = program.constrain(z[i].reshape(-1, dim), m.data)
-        mean, sd = np.asarray(sites["row_mean"]), np.asarray(sites["row_sd"])
-        var = np.mean(sd**2, axis=0) + np.var(mean, axis=0)
-        resid = (np.asarray(m.data.y) - mean.mean(axis=0)) / np.sqrt(var)
+        rows = row_summaries(sites)
+        resid = (np.asarray(m.data.y) - rows["mean"]) / np.sqrt(rows["var"])
         worst[i] = float(np.max(np.abs(np.where(np.asarray(m.data.censored), 0.0, resid))))
+        excess = np.asarray(sites["excess"]) * m.layout.dn_scale if "excess" in sites else None
+        misfits.append(misfit_of(m, rows, excess)[0])
         for k, v in sites.items():
             if k in SAMPLED:
                 out.setdefault(k, []).append(np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]))
-    return {k: np.stack(v) for k, v in out.items()}, worst
+    return {k: np.stack(v) for k, v in out.items()}, worst, misfits
 
 
-def _diagnostics(draws, stats, results, resid_z, backend: str, spec: ModelSpec, extras) -> pd.DataFrame:
+def _diagnostics(draws, stats, results, resid_z, backend: str, spec: ModelSpec, extras, misfits) -> pd.DataFrame:
     settings = spec.inference
     n = len(results)
     frame = pd.DataFrame(
         {
             "map_ok": [r.converged and r.positive_definite for r in results],
             "max_abs_residual_z": resid_z,
+            "misfit": ["; ".join(p) for p in misfits],
         }
     )
     ok = frame["map_ok"].to_numpy() & (resid_z <= OUTLIER_Z)
@@ -288,7 +309,8 @@ def _diagnostics(draws, stats, results, resid_z, backend: str, spec: ModelSpec, 
             & (frame["min_ess_bulk"].to_numpy() >= settings.min_ess)
             & (frame["min_ess_tail"].to_numpy() >= settings.min_ess)
         )
-    frame["ok"] = ok
+    frame["converged"] = ok  # the inference is trustworthy (what SBC asks)
+    frame["ok"] = ok & np.array([not p for p in misfits])  # ... and the model fits the data (what fit() asks)
     return frame
 
 

@@ -449,7 +449,7 @@ def _cmd_sbc(args) -> int:
     result.save(args.out)
     print(result.to_markdown().split("\n\n|")[0])
     print(f"wrote {args.out}.csv, {args.out}.md, {args.out}.png")
-    return 0 if result.batch.ok.mean() >= 0.99 else 1
+    return 0 if result.batch.converged.mean() >= 0.99 else 1
 
 
 def _cmd_report(args) -> int:

@@ -355,15 +355,22 @@ def _finish(model, program, z, backend, seed, divergences, stats, extra, result,
     return Fit(model, backend, seed, dt, diag, lsq, timings)
 
 
+def row_summaries(sites: dict) -> dict[str, np.ndarray]:
+    """Each row's posterior predictive mean and variance and its mean signal (scaled units), from the
+    constrained sites of a batch of draws: what the outlier and misfit checks read."""
+    mean = np.asarray(sites["row_mean"])
+    return {
+        "mean": mean.mean(axis=0),
+        "var": np.mean(np.asarray(sites["row_sd"]) ** 2, axis=0) + np.var(mean, axis=0),
+        "signal": np.asarray(sites["row_signal"]).mean(axis=0),
+    }
+
+
 def _posterior(model: CalibrationModel, program, z: np.ndarray, seed: int) -> tuple[dict, dict]:
     """Reported draws, and each row's posterior predictive mean and variance (scaled units)."""
     chains, draws, dim = z.shape
     sites = program.constrain(np.asarray(z).reshape(-1, dim), model.data)
-    rows = {
-        "mean": np.asarray(sites["row_mean"]).mean(axis=0),
-        "var": np.mean(np.asarray(sites["row_sd"]) ** 2, axis=0) + np.var(np.asarray(sites["row_mean"]), axis=0),
-        "signal": np.asarray(sites["row_signal"]).mean(axis=0),
-    }
+    rows = row_summaries(sites)
     sites = {k: np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]) for k, v in sites.items()}
     post = {k: v for k, v in sites.items() if k in SAMPLED}
     post.update(physical_draws(model, sites, seed))
@@ -399,12 +406,11 @@ def _check_outliers(model: CalibrationModel, rows: dict, diag: Diagnostics) -> D
     return replace(diag, ok=False, problems=diag.problems + (problem,), extra=extra)
 
 
-def _check_misfit(model: CalibrationModel, rows: dict, post: dict, diag: Diagnostics) -> Diagnostics:
-    """Does the model describe its data to within their noise? (:mod:`bayescal.misfit`)"""
+def misfit_of(model: CalibrationModel, rows: dict, excess_dn: np.ndarray | None) -> tuple[list[str], dict]:
+    """The misfit checks (:mod:`bayescal.misfit`) of one fit: ``rows`` from :func:`row_summaries`,
+    ``excess_dn`` the draws of the excess scatter in DN (None when not modelled)."""
     data, scale, settings = model.data, model.layout.dn_scale, model.spec.inference
-    n_avg = np.asarray(data.n_avg)
-    floor_var = np.asarray(model.parts.noise.nominal_pixel_variance(data, rows["signal"])) / n_avg
-    excess = np.asarray(post["excess_dn"]).ravel() if "excess_dn" in post else None
+    floor_var = np.asarray(model.parts.noise.nominal_pixel_variance(data, rows["signal"])) / np.asarray(data.n_avg)
     thresholds = MisfitThresholds(settings.misfit_excess_ratio, settings.misfit_group_z, settings.misfit_runs_z)
     problems, info = misfit_checks(
         model.table.frame,
@@ -413,11 +419,17 @@ def _check_misfit(model: CalibrationModel, rows: dict, post: dict, diag: Diagnos
         np.sqrt(rows["var"]) * scale,
         rows["signal"] * scale,
         np.sqrt(floor_var) * scale,
-        excess,
+        None if excess_dn is None else np.asarray(excess_dn).ravel(),
         np.asarray(data.censored),
         thresholds,
     )
     info["thresholds"] = {"excess_ratio": thresholds.excess_ratio, "group_z": thresholds.group_z}
+    return problems, info
+
+
+def _check_misfit(model: CalibrationModel, rows: dict, post: dict, diag: Diagnostics) -> Diagnostics:
+    """Does the model describe its data to within their noise? Fails the fit, naming where, if not."""
+    problems, info = misfit_of(model, rows, post.get("excess_dn"))
     extra = dict(diag.extra, misfit=info)
     if not problems:
         return replace(diag, extra=extra)

@@ -135,7 +135,7 @@ class SBCResult:
             f"- 95 % coverage over all parameters: {float(self.covered.to_numpy().mean()):.3f} "
             f"(per parameter {summ.coverage95.min():.3f}-{summ.coverage95.max():.3f})",
             f"- fits without divergences: {self.divergence_free:.1%}",
-            f"- fits passing all diagnostics: {float(self.batch.ok.mean()):.1%}",
+            f"- fits whose inference passed its checks (misfit aside): {float(self.batch.converged.mean()):.1%}",
             "",
             markdown_table(summ.reset_index(names="parameter")),
         ]

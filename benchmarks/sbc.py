@@ -58,7 +58,7 @@ def main() -> None:
             summ = res.summary()
             cov_all = float(res.covered.to_numpy().mean())
             mc_sd = np.sqrt(0.0475 / res.n_sims / len(summ))
-            passing = f"{res.divergence_free:.1%}; passing all diagnostics: {res.batch.ok.mean():.1%}"
+            passing = f"{res.divergence_free:.1%}; passing all diagnostics: {res.batch.converged.mean():.1%}"
             lines += [
                 f"## {name}, {backend}",
                 "",

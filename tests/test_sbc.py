@@ -110,7 +110,7 @@ def test_sbc_laplace_seed000(laplace_sbc):
     assert len(summ) == 40 and summ.index.str.startswith(("gain_log", "exposure_log")).sum() == 5
     assert summ.p_uniform.min() > 1e-3, summ.sort_values("p_uniform").head()
     assert abs(float(res.covered.to_numpy().mean()) - 0.95) < 3 * np.sqrt(0.0475 / SBC_LAPLACE_N)
-    assert res.batch.ok.all()
+    assert res.batch.converged.all()
 
 
 def test_sbc_nuts_seed002():

@@ -117,3 +117,15 @@ def pd_concat(*frames):
     import pandas as pd
 
     return pd.concat(frames, ignore_index=True)
+
+
+def test_fit_many_applies_the_misfit_checks_like_fit(seed000, off_table):
+    """A dataset that fit() fails for misfit fails in fit_many too, with the same problems."""
+    spec, _ = seed000
+    exact = spec.replace(settings={"gain_tolerance": 0.0, "exposure_tolerance": 0.0})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", bc.FitFailedWarning)
+        single = bc.fit(off_table, exact, "laplace", seed=3)
+        batch = bc.fit_many([off_table], exact, "laplace", seeds=[3])
+    assert not single.ok and not batch.ok.any()
+    assert "gain 2 rows sit" in batch.diagnostics["misfit"].iloc[0]
