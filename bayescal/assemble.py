@@ -130,8 +130,17 @@ class CalibrationModel:
         return (self.parts, self.layout.shape_key)
 
 
+def resolve_for_table(spec: ModelSpec, table: MeasurementTable) -> ModelSpec:
+    """The spec with its table-dependent options decided: ``dark.drift = "auto"`` is on when the table
+    records when each row was measured (``time_s``)."""
+    if spec.dark.drift == "auto":
+        spec = spec.replace(dark={"drift": "time_s" in table.frame})
+    return spec
+
+
 def build_model(table: MeasurementTable, spec: ModelSpec) -> CalibrationModel:
     """Validate ``table`` against ``spec`` and assemble the model."""
+    spec = resolve_for_table(spec, table)
     data, layout = prepare(table, spec)
     parts = Parts.from_spec(spec, layout, np.asarray(data.level_sigma))
     return CalibrationModel(spec=spec, table=table, data=data, layout=layout, parts=parts)

@@ -251,7 +251,7 @@ class Calibration:
             unit=_unit(spec.stimulus),
             read_noise_dn=read,
             conversion_gain=kconv,
-            prnu=spec.saturation.prnu,
+            prnu=float(np.median(draws["prnu"])) if "prnu" in draws else spec.saturation.prnu,
             margin_dn=spec.saturation.margin_dn,
             calibrated=_calibrated_range(frame, spec),
             source=source,

@@ -41,9 +41,10 @@ class ModelData(NamedTuple):
     var_meas: jnp.ndarray  # measured per-pixel variance / full scale^2 (1 if absent)
     n_avg: jnp.ndarray  # n_frames * n_pixels
     censored: jnp.ndarray  # bool, right-censored at the threshold
-    threshold: jnp.ndarray  # scalar, censoring threshold / full scale
+    threshold: jnp.ndarray  # per row, censoring threshold / full scale (see censoring())
     temp: jnp.ndarray  # temperature - dark.temperature_ref_c (degC; 0 without a temperature model)
     time: jnp.ndarray  # time_s / the run's duration (0 without a drift model): 0 at the start of the run
+    keep: jnp.ndarray  # bool, the row's reading enters the likelihood (False: held out, predicted only)
 
 
 @dataclass(frozen=True)
@@ -89,6 +90,16 @@ def effective_stimulus(
     return stimulus * (exposure_s * tdi * gain) / (ref.exposure_s * ref.tdi_stages * ref.gain)
 
 
+def censoring(y_dn: np.ndarray, spec: ModelSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's censoring threshold (DN) and whether the row is censored: a row reading at or above
+    full scale minus ``saturation.margin_dn`` is clipped and says only that its mean lies above that.
+    (Rows that are only partly clipped are handled in the likelihood, :mod:`bayescal.components.saturation`.)
+    """
+    sat = spec.saturation
+    threshold = np.full(np.shape(y_dn), spec.full_scale - sat.margin_dn)
+    return threshold, (np.asarray(y_dn) >= threshold) & sat.censor
+
+
 def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout]:
     """Check the table against the spec and build the scaled model inputs.
 
@@ -122,10 +133,10 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
     )
     if not np.any(~dark):
         raise TableError("the table has only dark rows; expected illuminated rows too", column=table.stimulus)
-    threshold = (dn_scale - spec.saturation.margin_dn) / dn_scale
     y = df["dn_mean"].to_numpy() / dn_scale
-    censored = (y >= threshold) & spec.saturation.censor
-    saturated = y >= threshold
+    threshold_dn, censored = censoring(df["dn_mean"].to_numpy(), spec)
+    threshold = threshold_dn / dn_scale
+    saturated = y >= (dn_scale - spec.saturation.margin_dn) / dn_scale
     _check_levels_per_channel(df, dark, saturated, x, spec)
 
     channels = tuple(table.channels)
@@ -188,6 +199,7 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
         threshold=jnp.asarray(threshold),
         temp=jnp.asarray(temp, dtype=float),
         time=jnp.asarray(time, dtype=float),
+        keep=jnp.ones(len(df), dtype=bool),
     )
     layout = Layout(
         channels=channels,

@@ -72,6 +72,7 @@ def physical_draws(model: CalibrationModel, draws: dict[str, np.ndarray], seed: 
     out.update(parts.dark.physical(draws, layout))
     out.update(parts.sphere.physical(draws, np.asarray(model.data.level_sigma)))
     out.update(parts.noise.physical(draws))
+    out.update(parts.saturation.physical(draws))
     out.update(parts.settings.physical(draws, np.random.default_rng(np.random.SeedSequence([seed, 0x5E7]))))
     out["sphere_scale"] = scale
     return out

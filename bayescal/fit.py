@@ -26,6 +26,7 @@ from .assemble import CalibrationModel, build_model
 from .derived import DIMS, physical_draws
 from .diagnostics import Diagnostics, mcmc_diagnostics
 from .errors import FitFailedError, FitFailedWarning, SpecError
+from .holdout import holdout_checks
 from .inference.emcee_backend import run_emcee
 from .inference.laplace import integrated_draws, laplace, laplace_draws
 from .inference.lsq import lsq_baseline
@@ -61,6 +62,7 @@ REPORTED = (
     "setting_spread_exposure",
     "setting_spread_tdi",
     "sphere_scale",
+    "prnu",
 )
 SAMPLED = (
     "G",
@@ -81,6 +83,7 @@ SAMPLED = (
     "gain_log",
     "exposure_log",
     "tdi_log",
+    "prnu",
 )
 
 
@@ -335,6 +338,8 @@ def _finish(model, program, z, backend, seed, divergences, stats, extra, result,
     diag = _diagnose(backend, post, divergences, spec, extra, result)
     diag = _check_outliers(model, rows, diag)
     diag = _check_misfit(model, rows, post, diag)
+    if spec.inference.holdout_check and result.positive_definite:
+        diag = _check_holdout(model, program, result.mode, seed, diag)
     if not diag.ok:
         _fail(strict, f"fit failed its diagnostics: {diag.verdict}")
     with warnings.catch_warnings():  # emcee has more walkers than thinned draws, by design
@@ -352,6 +357,14 @@ def _finish(model, program, z, backend, seed, divergences, stats, extra, result,
         )
     dt.attrs.update(spec_toml=spec.to_toml(), backend=backend, seed=seed, bayescal_version=__version__)
     dt["measurements"] = xr.DataTree(_table_dataset(table))
+    dt["constant_data"] = xr.DataTree(
+        xr.Dataset(
+            {
+                "censored": ("row", np.asarray(model.data.censored)),
+                "threshold_dn": ("row", np.asarray(model.data.threshold) * model.layout.dn_scale),
+            }
+        )
+    )
     return Fit(model, backend, seed, dt, diag, lsq, timings)
 
 
@@ -431,6 +444,15 @@ def _check_misfit(model: CalibrationModel, rows: dict, post: dict, diag: Diagnos
     """Does the model describe its data to within their noise? Fails the fit, naming where, if not."""
     problems, info = misfit_of(model, rows, post.get("excess_dn"))
     extra = dict(diag.extra, misfit=info)
+    if not problems:
+        return replace(diag, extra=extra)
+    return replace(diag, ok=False, problems=diag.problems + tuple(problems), extra=extra)
+
+
+def _check_holdout(model: CalibrationModel, program, mode, seed: int, diag: Diagnostics) -> Diagnostics:
+    """Leave each setting's rows out in turn: do the other rows predict them? (:mod:`bayescal.holdout`)"""
+    problems, info = holdout_checks(model, program, mode, model.spec.inference.misfit_group_z, seed)
+    extra = dict(diag.extra, holdout=info)
     if not problems:
         return replace(diag, extra=extra)
     return replace(diag, ok=False, problems=diag.problems + tuple(problems), extra=extra)

@@ -16,7 +16,9 @@ fit is checked for
   with the group's relative deviation from the model;
 - **runs along the signal**: within a channel, residuals sorted by signal
   that change sign too rarely (Wald-Wolfowitz runs test): the response shape
-  is not what the model can draw (e.g. a roll-off near full scale).
+  is not what the model can draw (e.g. a roll-off near full scale);
+- **runs along the measurement order** (``time_s``, else the row order):
+  a dark level or responsivity that drifted during the run.
 
 Each check that fires adds a problem naming the rows and a remedy; the fit is
 then reported failed (exit 3, the report's banner).  The numbers behind the
@@ -159,4 +161,32 @@ def misfit_checks(
                     "the response shape is not one the model can draw (a roll-off near full scale? a higher order?)"
                 )
     info["runs_z"] = runs
+    info.update(_drift_check(frame, z, usable, thresholds, problems))
     return problems, info
+
+
+def _drift_check(frame: pd.DataFrame, z: np.ndarray, usable: np.ndarray, thresholds: MisfitThresholds, problems):
+    """Runs of the residual signs along the measurement order: a camera or bench that drifted during the run.
+
+    The order is ``time_s`` where the table has it, else the row order (the
+    order most labs write rows in).  Under the model the residuals are
+    independent of either order, so the check's false-alarm rate is that of
+    the runs test whatever the order.
+    """
+    by_time = "time_s" in frame
+    key = frame["time_s"].to_numpy(dtype=float) if by_time else np.arange(len(frame), dtype=float)
+    idx = np.flatnonzero(usable)
+    order = idx[np.argsort(key[idx], kind="stable")]
+    zr = runs_z(z[order]) if order.size >= 8 else 0.0
+    if zr < thresholds.runs_z:
+        where = "time_s" if by_time else "the row order (no time_s column)"
+        remedy = (
+            "set dark.drift = true to fit a dark-level drift over the run"
+            if by_time
+            else "add a time_s column (when each row was measured) and set dark.drift = true"
+        )
+        problems.append(
+            f"residuals change sign too rarely along the measurement order, {where} (runs z = {zr:+.1f}): "
+            f"the camera or the bench drifted during the run; {remedy}"
+        )
+    return {"order_runs_z": zr, "order_by": "time_s" if by_time else "row"}

@@ -339,13 +339,10 @@ def _undetermined(name: str) -> str:
 
 def plot_curves(res: Characterization, path) -> None:
     """Photon transfer, sensitivity and linearity-deviation curves (PNG), fit ranges shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .figures import subplots
 
     c, r, p = res.curves, res.ranges, res.standard
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    fig, axes = subplots(1, 3, figsize=(14, 4))
     s = slice(r["index_sensitivity_min"], r["index_sensitivity_max"] + 1)
     ax = axes[0]
     ax.plot(c["signal"], c["var_signal"], "o", ms=3)
@@ -369,4 +366,3 @@ def plot_curves(res: Characterization, path) -> None:
     ax.set(xlabel="photons per pixel", ylabel="deviation (%)", title="linearity (5-95 % of saturation)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -19,9 +19,7 @@ posterior draws.  Contents (issue 6):
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import json
 import os
 from pathlib import Path
@@ -31,6 +29,8 @@ import pandas as pd
 
 from .calibration import Calibration, Setting
 from .errors import PosteriorError
+from .figures import colours as colour_cycle
+from .figures import png_base64, subplots
 from .invert import invert, radiance_draws
 from .io import write_json_atomic, write_text_atomic
 from .predict import predict
@@ -79,9 +79,6 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
 
     ``out`` defaults to ``FIT_DIR/report.html``; JSON and Markdown go beside it.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     fit_dir = Path(fit_dir)
     out = Path(out) if out is not None else fit_dir / "report.html"
     try:
@@ -98,6 +95,8 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
     tree = az.from_netcdf(fit_dir / "posterior.nc")
     frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
     frame = frame.rename(columns={cal.stimulus: "stimulus"})
+    if "constant_data" in tree.children:  # rows used as lower bounds (clipped, or near full scale)
+        frame["censored"] = np.asarray(tree["constant_data"]["censored"])
     lsq = pd.DataFrame(summary["lsq"])
     coef = _coefficient_table(summary)
     lsq_ref = _lsq_at_reference(lsq, cal, summary)
@@ -185,12 +184,7 @@ def _examples(cal: Calibration, seed: int) -> dict[str, pd.DataFrame]:
 
 # ---------------------------------------------------------------- figures
 def _png(fig) -> str:
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
+    return png_base64(fig)
 
 
 def _settings(frame: pd.DataFrame) -> list[tuple[float, float, float]]:
@@ -200,13 +194,11 @@ def _settings(frame: pd.DataFrame) -> list[tuple[float, float, float]]:
 
 
 def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> str:
-    import matplotlib.pyplot as plt
-
     chans = list(cal.channels)
-    fig, axes = plt.subplots(1, len(chans), figsize=(4.6 * len(chans), 4.0), squeeze=False)
+    fig, axes = subplots(1, len(chans), figsize=(4.6 * len(chans), 4.0), squeeze=False)
     rng = np.random.default_rng(0)
     n_avg = float(np.median(frame.get("n_frames", 1) * frame.get("n_pixels", 1)))
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colours = colour_cycle()
     for ax, ch in zip(axes[0], chans, strict=True):
         for k, (t, g, m) in enumerate(_settings(frame)):
             col = colours[k % len(colours)]
@@ -223,7 +215,7 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
             ax.fill_between(grid, plo, phi, color=col, alpha=0.12, lw=0)
             ax.fill_between(grid, lo, hi, color=col, alpha=0.35, lw=0)
             ax.plot(grid, np.median(mean, axis=0), color=col, lw=1.2, label=f"{t:g} s, gain {g:g}")
-            cens = rows["dn_mean"] >= cal.saturation_dn
+            cens = rows["censored"] if "censored" in rows else rows["dn_mean"] >= cal.saturation_dn
             ax.plot(rows["stimulus"][~cens], rows["dn_mean"][~cens], "o", color=col, ms=3.5)
             ax.plot(rows["stimulus"][cens], rows["dn_mean"][cens], "x", color="k", ms=6, mew=1.5)
             fitrow = lsq[(lsq.channel == ch) & np.isclose(lsq.exposure_s, t) & np.isclose(lsq.gain, g)]
@@ -238,7 +230,8 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
     fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
     fig.suptitle(
         "posterior median (line), 95 % credible and predictive bands (too narrow to see at this scale: the "
-        "residual panels below show them in sd units); dashed: least squares; x: censored (clipped)",
+        "residual panels below show them in sd units); dashed: least squares; x: censored (clipped, or near "
+        "full scale and used as a lower bound)",
         fontsize=9,
     )
     fig.tight_layout(rect=(0, 0.1, 1, 0.95))
@@ -247,12 +240,10 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
 
 def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
     """Residuals in predictive sds (a band of +-2 is what the model allows), one colour per setting."""
-    import matplotlib.pyplot as plt
-
     chans = list(cal.channels)
-    fig, axes = plt.subplots(1, len(chans), figsize=(4.6 * len(chans), 3.4), squeeze=False, sharey=True)
+    fig, axes = subplots(1, len(chans), figsize=(4.6 * len(chans), 3.4), squeeze=False, sharey=True)
     rng = np.random.default_rng(1)
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colours = colour_cycle()
     settings = _settings(frame)
     for ax, ch in zip(axes[0], chans, strict=True):
         ax.axhspan(-2, 2, color="0.85", lw=0)
@@ -263,7 +254,7 @@ def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
                 & np.isclose(frame.exposure_s, t)
                 & np.isclose(frame.gain, g)
                 & (frame["stimulus"] > 0)
-                & (frame.dn_mean < cal.saturation_dn)
+                & ~(frame["censored"] if "censored" in frame else frame.dn_mean >= cal.saturation_dn)
             ]
             if rows.empty:
                 continue
@@ -284,9 +275,7 @@ def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
 
 def _fig_misfit(misfit: dict | None) -> str:
     """The misfit checks (:mod:`bayescal.misfit`): residual sums per group of rows, and the excess scatter."""
-    import matplotlib.pyplot as plt
-
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 3.4), gridspec_kw={"width_ratios": [4, 1]})
+    fig, (ax, bx) = subplots(1, 2, figsize=(11, 3.4), gridspec_kw={"width_ratios": [4, 1]})
     limits = (misfit or {}).get("thresholds", {"excess_ratio": 10.0, "group_z": 4.0})
     zmax, rmax = limits["group_z"], limits["excess_ratio"]
     groups = pd.DataFrame((misfit or {}).get("groups", []))
@@ -312,9 +301,7 @@ def _fig_misfit(misfit: dict | None) -> str:
 
 
 def _fig_budget(budget: pd.DataFrame) -> str:
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7.5, 3.2))
+    fig, ax = subplots(figsize=(7.5, 3.2))
     labels = [f"{r.channel} {r.dn:.0f} DN" for r in budget.itertuples()]
     left = np.zeros(len(budget))
     for name, col in (("share_parameters", "C0"), ("share_sphere", "C1"), ("share_noise", "C2")):
@@ -327,10 +314,8 @@ def _fig_budget(budget: pd.DataFrame) -> str:
 
 
 def _fig_trace(tree, cal: Calibration) -> str:
-    import matplotlib.pyplot as plt
-
     gain = np.asarray(tree["posterior"]["gain_rel"])  # (chain, draw, channel)
-    fig, axes = plt.subplots(1, gain.shape[-1], figsize=(4.6 * gain.shape[-1], 2.6), squeeze=False)
+    fig, axes = subplots(1, gain.shape[-1], figsize=(4.6 * gain.shape[-1], 2.6), squeeze=False)
     for c, ax in enumerate(axes[0]):
         for chain in range(gain.shape[0]):
             ax.plot(gain[chain, :, c], lw=0.4, alpha=0.8)

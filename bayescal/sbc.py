@@ -33,7 +33,7 @@ from scipy import stats
 
 from .assemble import CalibrationModel
 from .batch import FitBatch, _replace_data, fit_models
-from .data import _check_levels_per_channel
+from .data import _check_levels_per_channel, censoring
 from .errors import SpecError, TableError
 from .fit import SAMPLED
 from .inference.program import program_for
@@ -143,17 +143,13 @@ class SBCResult:
 
     def plot(self, path: str | os.PathLike | None = None):
         """Rank histograms, one panel per parameter, with the 99 % band of a uniform histogram."""
-        import matplotlib
-
-        if path is not None:
-            matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        from .figures import subplots
 
         counts = self.histograms()
         n = counts.shape[1]
         cols = min(6, n)
         rows = int(np.ceil(n / cols))
-        fig, axes = plt.subplots(rows, cols, figsize=(2.2 * cols, 1.7 * rows), squeeze=False, sharey=True)
+        fig, axes = subplots(rows, cols, figsize=(2.2 * cols, 1.7 * rows), squeeze=False, sharey=True)
         lo, hi = stats.binom.ppf([0.005, 0.995], self.n_sims, 1 / self.bins)
         p = self.p_values()
         for ax, name in zip(axes.ravel(), counts.columns, strict=False):
@@ -169,7 +165,6 @@ class SBCResult:
         if path is not None:
             with atomic_path(path) as tmp:
                 fig.savefig(tmp, dpi=110, format=str(path).rsplit(".", 1)[-1])
-            plt.close(fig)
         return fig
 
     def save(self, stem: str | os.PathLike) -> None:
@@ -200,7 +195,7 @@ def prior_datasets(
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5BC]))
     frame = model.table.frame
     dark = np.asarray(data.u) == 0
-    threshold = float(data.threshold)
+    full = (spec.full_scale - spec.saturation.margin_dn) / model.layout.dn_scale
     upper = 1.0 + 0.5 / model.layout.dn_scale
     kept: list[CalibrationModel] = []
     truths: dict[str, list] = {k: [] for k in latent}
@@ -215,14 +210,21 @@ def prior_datasets(
         rejected += int((~possible).sum())
         for i in np.flatnonzero(possible):
             yi = y[i]
-            saturated = yi >= threshold
+            saturated = yi >= full
             try:
                 _check_levels_per_channel(frame, dark, saturated, np.asarray(data.u), spec)
             except TableError:
                 rejected += 1
                 continue
-            censored = saturated & spec.saturation.censor
-            kept.append(_replace_data(model, y=jax.numpy.asarray(yi), censored=jax.numpy.asarray(censored)))
+            threshold, censored = censoring(yi * model.layout.dn_scale, spec)
+            kept.append(
+                _replace_data(
+                    model,
+                    y=jax.numpy.asarray(yi),
+                    censored=jax.numpy.asarray(censored),
+                    threshold=jax.numpy.asarray(threshold / model.layout.dn_scale),
+                )
+            )
             for k in latent:
                 truths[k].append(draws[k][i])
             if len(kept) == n:

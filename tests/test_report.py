@@ -93,3 +93,31 @@ def test_report_renders_in_headless_chromium(report_dir):
 
     img = np.asarray(Image.open(shot).convert("L"), dtype=float)
     assert img.shape[0] >= 2000 and img.std() > 10  # not a blank page
+
+
+def test_report_leaves_matplotlib_state_alone(report_dir, tmp_path):
+    """Writing a report neither switches the user's matplotlib backend nor leaves pyplot figures open."""
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    backend, figures = matplotlib.get_backend(), plt.get_fignums()
+    write_report(report_dir, tmp_path / "again.html")
+    assert matplotlib.get_backend() == backend and plt.get_fignums() == figures
+
+
+def test_import_changes_no_global_state():
+    """``import bayescal`` (and the CLI's parser) leave JAX's precision, its compilation cache and matplotlib's
+    backend as they were; float64 is switched on where bayescal computes (a fit), not on import."""
+    code = (
+        "import json, jax, matplotlib\n"
+        "state = lambda: [jax.config.jax_enable_x64, jax.config.jax_compilation_cache_dir, matplotlib.get_backend()]\n"
+        "before = state()\n"
+        "import bayescal, bayescal.cli\n"
+        "bayescal.__version__\n"
+        "print(json.dumps([before, state()]))\n"
+    )
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    before, after = json.loads(out.stdout.strip().splitlines()[-1])
+    assert before == after and before[0] is False, (before, after)

@@ -147,11 +147,14 @@ class Realisation:
         """``[A0, A1, A2]`` at the reference setting (gain 1, ``t_ref``), small-signal, in true radiance;
         ``relative``: against the sphere's nominal reading (``A_k s^k``), what the bench's readings say."""
         cam = self.camera
+        # the region's pixels respond by the mean of their PRNU map (1 +- prnu / sqrt(n_pixels)):
+        # that mean, not the nominal responsivity, is what a calibration of region means measures
+        region = float(np.mean(self.prnu_map[channel][: cam.n_pixels]))
         a = np.array(
             [
                 self.dark_dn(channel, cam.t_ref, 1.0),
-                cam.responsivity[channel] * self.gain_factor.get(1.0, 1.0),
-                cam.compression[channel] * self.gain_factor.get(1.0, 1.0),
+                cam.responsivity[channel] * self.gain_factor.get(1.0, 1.0) * region,
+                cam.compression[channel] * self.gain_factor.get(1.0, 1.0) * region,
             ]
         )
         return a * self.sphere_scale ** np.arange(3) if relative else a
