@@ -3,9 +3,12 @@
 Polynomials ``DN = A0 + A1 L + ... + Ap L^p`` per channel and setting, with
 the goodness-of-fit numbers the papers quote (R^2, SSE, RMSE) and classical
 t confidence intervals.  Solved by Householder QR on a column-equilibrated
-Vandermonde matrix of the scaled abscissa ``u = x / max|x|``; coefficients
-are unscaled exactly (``A_k = c_k / h^k``, no cancellation), which
-reproduces NIST StRD certified values (docs/architecture.md, section 5).
+Vandermonde matrix of the scaled abscissa ``u = x / h`` (``h`` the power of
+two at or above ``max|x|``); coefficients are unscaled exactly (``A_k = c_k /
+h^k``), refined iteratively with residuals formed in twice the precision
+(:mod:`bayescal.inference.compensated`), which reproduces NIST StRD certified
+values and keeps the standard errors' digits when residuals are tiny
+(docs/architecture.md, section 5).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import pandas as pd
 from scipy import stats
 
 from ..table import MeasurementTable
+from .compensated import residual_dot2, residual_horner
 
 __all__ = ["LinearFit", "lstsq", "polyfit", "lsq_baseline"]
 
@@ -66,18 +70,24 @@ def lstsq(design: np.ndarray, y: np.ndarray, *, intercept_included: bool = True)
         Whether R^2 is centred (a constant column is in the model).
     """
     design = np.asarray(design, dtype=float)
-    y = np.asarray(y, dtype=float)
+    return _solve(design, np.asarray(y, dtype=float), lambda c: residual_dot2(design, c, y), intercept_included)
+
+
+def _solve(design: np.ndarray, y: np.ndarray, residual, intercept_included: bool) -> LinearFit:
+    """QR least squares on power-of-two equilibrated columns (exact scaling), with iterative refinement
+    (Bjorck) driven by ``residual(coef)``, residuals formed in twice the precision
+    (:mod:`bayescal.inference.compensated`): the residual sd and the standard errors keep their digits
+    when the residuals are tiny against the readings."""
     n, p = design.shape
     if n < p:
         raise ValueError(f"{n} points cannot determine {p} coefficients")
     norms = np.linalg.norm(design, axis=0)
-    norms[norms == 0] = 1.0
+    norms = np.where(norms > 0, np.exp2(np.round(np.log2(np.where(norms > 0, norms, 1.0)))), 1.0)
     q, r = np.linalg.qr(design / norms)
     coef_s = np.linalg.solve(r, q.T @ y)
-    resid = y - (design / norms) @ coef_s
-    # one step of iterative refinement (Bjorck): recovers digits lost to rounding
-    coef_s = coef_s + np.linalg.solve(r, q.T @ resid)
-    resid = y - (design / norms) @ coef_s
+    for _ in range(2):
+        coef_s = coef_s + np.linalg.solve(r, q.T @ residual(coef_s / norms))
+    resid = residual(coef_s / norms)
     sse = float(resid @ resid)
     dof = n - p
     r_inv = np.linalg.solve(r, np.eye(p))
@@ -94,13 +104,24 @@ def polyfit(x: np.ndarray, y: np.ndarray, order: int, *, intercept: bool = True)
     """Monomial polynomial fit ``y = A0 + A1 x + ... + Ap x^p``; coefficients lowest power first.
 
     Without ``intercept`` the model is ``A1 x + ... + Ap x^p`` (NIST NoInt)
-    and ``coef`` still starts with ``A1``.
+    and ``coef`` still starts with ``A1``.  The abscissa is scaled by a power
+    of two (exact); residuals are evaluated on the original ``x`` by
+    compensated Horner, so the rounding of the scaled powers does not enter
+    the residual sd.
     """
     x = np.asarray(x, dtype=float)
-    h = float(np.max(np.abs(x))) or 1.0
+    y = np.asarray(y, dtype=float)
+    top = float(np.max(np.abs(x))) or 1.0
+    h = float(np.exp2(np.ceil(np.log2(top))))
     powers = np.arange(0 if intercept else 1, order + 1)
-    fit = lstsq((x[:, None] / h) ** powers, y, intercept_included=intercept)
     scale = h**powers
+
+    def residual(coef_scaled: np.ndarray) -> np.ndarray:
+        full = np.zeros(order + 1)
+        full[powers] = coef_scaled / scale
+        return residual_horner(x, full, y)
+
+    fit = _solve((x[:, None] / h) ** powers, y, residual, intercept)
     return LinearFit(
         coef=fit.coef / scale, cov=fit.cov / np.outer(scale, scale), sse=fit.sse, dof=fit.dof, r2=fit.r2, n=fit.n
     )
