@@ -382,6 +382,9 @@ def _cmd_characterize(args) -> int:
     ]
     print(f"dark current from the mean and from the variance: {verdict} (95 % interval of their difference)")
     print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir() if not p.name.startswith("."))))
+    if res.problems:
+        print("CHARACTERISATION IMPLAUSIBLE:\n  " + "\n  ".join(res.problems), file=sys.stderr)
+        return 3
     return 0
 
 

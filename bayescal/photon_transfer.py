@@ -59,9 +59,29 @@ class Characterization:
     dark_current_compatible: bool | None  # None: the dark current is not determined
     source: str
 
+    @property
+    def problems(self) -> list[str]:
+        """Results no sensor can have, each with what to check (empty: plausible)."""
+        out = []
+        for name, value in (("K", self.standard.get("K")), ("QE", self.standard.get("QE"))):
+            if value is None or not np.isfinite(value) or value <= 0:
+                out.append(f"{name} = {value}: not a positive number; check the photon counts and the dark pairs")
+        qe = self.standard.get("QE")
+        if qe is not None and np.isfinite(qe) and qe > 100:
+            out.append(
+                f"QE = {qe:.3g} % exceeds 100 %: the photon counts (photons per pixel per exposure) are too low "
+                "for the signal, or the bit depth is wrong"
+            )
+        for name in ("sigma_y_dark", "u_e_sat", "SNR_max", "DR"):
+            value = self.standard.get(name)
+            if value is not None and not np.isfinite(value):
+                out.append(f"{name} is not a number: the sweep does not reach saturation, or a step is empty")
+        return out
+
     def to_dict(self) -> dict:
-        """JSON-ready: table rows, ranges and the dark-current verdict."""
+        """JSON-ready: table rows, ranges, the dark-current verdict and any implausible result."""
         return {
+            "problems": self.problems,
             "source": self.source,
             "ranges": self.ranges,
             "dark_current_compatible": self.dark_current_compatible,

@@ -199,3 +199,23 @@ def test_bit_depth_of_a_reduced_table(tmp_path):
     assert load_steps(tmp_path / "s.csv").bits == 8
     (tmp_path / "b.csv").write_text("\n".join([rows[0] + ",bits"] + [r + ",10" for r in rows[1:]]) + "\n")
     assert load_steps(tmp_path / "b.csv").bits == 10
+
+
+def test_implausible_characterisation_is_reported(tmp_path):
+    """Photon counts 20x too low make QE ~900 %: the characterisation names it (exit 3 from the CLI), where a
+    plausible sensor has no problems."""
+    import dataclasses
+
+    from bayescal.emva import simulate_steps
+
+    steps = simulate_steps(seed=3)
+    assert characterize(steps).problems == []
+    bad = dataclasses.replace(steps, bright=steps.bright.assign(photons=steps.bright["photons"] / 20))
+    problems = characterize(bad).problems
+    assert any("exceeds 100 %" in p for p in problems), problems
+    path = tmp_path / "steps.csv"
+    lines = ["kind,texp_ns,photons_per_pixel,n_images,mean_DN,var_temporal_DN2"]
+    for kind, df in (("bright", bad.bright), ("dark", bad.dark)):
+        lines += [f"{kind},{r.texp_s * 1e9},{r.photons},2,{r.mean_dn},{r.var_dn2}" for r in df.itertuples()]
+    path.write_text("\n".join(lines) + "\n")
+    assert main(["characterize", str(path), "--out", str(tmp_path / "out")]) == 3
