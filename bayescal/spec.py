@@ -196,16 +196,18 @@ class SettingsSpec:
     random variables around their nominal values, partially pooled per kind
     (:mod:`bayescal.components.settings`).  Each tolerance is the prior mean of
     that kind's spread of log factors: the lab's statement of how exact its
-    settings are (0: exact, the factors are left out).  The defaults, 5 % for
-    every kind, are what the source documents measured: at 1/100 s seed 000's
-    red slope was 5.2 % above the one derived from 1/250 s (Table 2), and
-    seed 002's settings chosen by eq. 12 read 6.6 % above and 8.8 % below
-    their targets.
+    settings are (0: exact, the factors are left out).  The defaults, 7 % for
+    every kind, are the RMS of the log departures the source documents
+    measured: at 1/100 s seed 000's red slope was 5.2 % above the one derived
+    from 1/250 s (Table 2), and seed 002's settings chosen by eq. 12 read 6.6 %
+    above and 8.8 % below their targets (RMS of log factors 0.070).  With 5 %
+    the held-out prediction of a setting 8.8 % low excluded the camera's
+    reading (tests/test_misspecification.py).
     """
 
-    gain_tolerance: float = 0.05
-    exposure_tolerance: float = 0.05
-    tdi_tolerance: float = 0.05
+    gain_tolerance: float = 0.07
+    exposure_tolerance: float = 0.07
+    tdi_tolerance: float = 0.07
 
 
 @dataclass(frozen=True)

@@ -83,7 +83,7 @@ def test_seed000_table2_departure_is_predicted(spec):
     setting, radiance = bc.Setting(0.01, 1.0), 15.9973  # the paper's example scene (section 6)
     rng = np.random.default_rng(3)
     actual = real.read("G", radiance * real.sphere_scale, 0.01, 1.0, rng)
-    for tolerance, covers in ((0.05, True), (0.0, False)):
+    for tolerance, covers in ((0.07, True), (0.0, False)):
         s = spec.replace(settings={"exposure_tolerance": tolerance})
         cal = bc.Calibration.from_fit(_fit(s, frame, 1))
         p = bc.predict(cal, [radiance], setting, ["G"], n_avg=camera.n_frames * camera.n_pixels, relative=True)
@@ -211,3 +211,23 @@ def test_prnu_with_partial_clipping_is_covered(spec):
             t = real.true_coefficients(c, relative=True)[:2]
             hits += list((lo <= t) & (t <= hi))
     assert np.sum(hits) >= 40, np.mean(hits)
+
+
+@pytest.mark.parametrize("factor", [1.066, 0.912])
+def test_seed002_departures_are_predicted(spec, factor):
+    """Seed 002: settings chosen by its eq. 12 to reach 900 and 300 DN gave 959.4 and 273.6 DN, departures of
+    +6.6 % and -8.8 % from the proportional model.  A camera whose held-out 1/100 s setting departs by those
+    amounts, calibrated on the others: the predictive intervals (population spread of the setting factors) hold
+    its actual readings for all 3 channels x 2 radiances on 2 datasets; with exact settings they miss."""
+    camera = with_held_out(BenchCamera(), exposures=(0.01,))
+    hits = {0.07: [], 0.0: []}
+    for seed in range(2):
+        frame, real = simulate_bench(camera, Departures(exposure_factor=((0.01, factor),)), seed=60 + seed)
+        rng = np.random.default_rng(seed)
+        for tolerance in hits:
+            cal = bc.Calibration.from_fit(_fit(spec.replace(settings={"exposure_tolerance": tolerance}), frame, seed))
+            p = bc.predict(cal, [6.0, 18.0], bc.Setting(0.01), n_avg=camera.n_frames * camera.n_pixels, relative=True)
+            for r in p.itertuples():
+                actual = real.read(r.channel, r.stimulus * real.sphere_scale, 0.01, 1.0, rng)
+                hits[tolerance].append(r.pi_lo <= actual <= r.pi_hi)
+    assert all(hits[0.07]) and not any(hits[0.0]), {k: np.mean(v) for k, v in hits.items()}
