@@ -22,32 +22,25 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
+from . import backends
 from .assemble import CalibrationModel, build_model
+from .backends import Draws
 from .derived import physical_draws
 from .errors import SpecError
-from .fit import (
-    OUTLIER_Z,
-    SAMPLED,
-    Fit,
-    _diagnose,
-    _finish,
-    _laplace_z,
-    _nuts_stats,
-    misfit_of,
-    note_retry,
-    row_summaries,
-)
+from .fit import OUTLIER_Z, SAMPLED, Fit, _finish, misfit_of, row_summaries
 from .inference.laplace import LaplaceResult, laplace, laplace_many
 from .inference.lsq import lsq_baseline
 from .inference.nuts import NutsDraws, run_nuts_many
 from .inference.program import Program, program_for
+from .inference.samplers import laplace_problems, laplace_z, note_retry, nuts_stats
 from .inference.start import initial_point
 from .spec import ModelSpec
 from .table import MeasurementTable
 
 __all__ = ["FitBatch", "fit_many"]
 
-BATCH_BACKENDS = ("nuts", "laplace")
+#: backends with a vectorised path (:mod:`bayescal.inference.backends`)
+BATCH_BACKENDS = tuple(backends.names(batched=True))
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,12 +114,9 @@ class FitBatch:
         return _finish(
             model,
             self._program,
-            self._z[i],
+            Draws(self._z[i], divergences, stats, dict(self._extra[i])),
             self.backend,
             self.seeds[i],
-            divergences,
-            stats,
-            dict(self._extra[i]),
             self._laplace[i],
             lsq,
             {"batch_" + k: v for k, v in self.timings.items()},
@@ -229,11 +219,11 @@ def fit_models(
         for out, extra in zip(outs, extras, strict=True):
             note_retry(out, spec.inference, extra)
         z = np.stack([o.z for o in outs])
-        stats = tuple(_nuts_stats(o) for o in outs)
+        stats = tuple(nuts_stats(o) for o in outs)
     else:
         z = []
         for i, (m, r) in enumerate(zip(models, results, strict=True)):
-            z.append(_laplace_z(m, program, r, seeds[i], extras[i]))
+            z.append(laplace_z(m, program, r, seeds[i], extras[i]))
             if progress is not None:
                 progress(i + 1)
         z = np.stack(z)
@@ -290,7 +280,7 @@ def _diagnostics(draws, stats, results, resid_z, backend: str, spec: ModelSpec, 
     )
     ok = frame["map_ok"].to_numpy() & (resid_z <= OUTLIER_Z)
     if backend == "laplace":  # the single-fit verdict: MAP converged, integration grid not truncated
-        ok &= np.array([_diagnose(backend, None, 0, spec, e, r).ok for e, r in zip(extras, results, strict=True)])
+        ok &= np.array([not laplace_problems(r, e) for e, r in zip(extras, results, strict=True)])
     if backend == "nuts":
         ds = xr.Dataset(
             {

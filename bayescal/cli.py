@@ -13,6 +13,8 @@ import os
 import sys
 from pathlib import Path
 
+from . import backends
+
 __all__ = ["main"]
 
 
@@ -72,7 +74,7 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument(
         "--backend",
         default="nuts",
-        choices=["nuts", "emcee", "laplace", "lsq"],
+        choices=backends.names(baseline=True),
         help="inference backend (default nuts)",
     )
     f.add_argument("--out", required=True, help="output directory")
@@ -127,9 +129,7 @@ def _parser() -> argparse.ArgumentParser:
     se.add_argument("--model", required=True, help="base model spec (TOML)")
     se.add_argument("--orders", type=_orders, default=[1, 2, 3], help="response orders 1-4 to compare (default 1,2,3)")
     se.add_argument("--without", default="", help="components to try switching off: level_errors,excess,exposure_slope")
-    se.add_argument(
-        "--backend", default="laplace", choices=["nuts", "laplace", "emcee"], help="backend (default laplace)"
-    )
+    se.add_argument("--backend", default="laplace", choices=backends.names(), help="backend (default laplace)")
     se.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     se.set_defaults(func=_cmd_select)
     sc = sub.add_parser("scene", help="cheapest calibration whose inversion of an image matches the full model's")
@@ -146,7 +146,7 @@ def _parser() -> argparse.ArgumentParser:
     sb.add_argument("data", help="CSV or Parquet table: its design (settings, levels) is used, not its readings")
     sb.add_argument("--model", required=True, help="model spec (TOML); its priors generate the datasets")
     sb.add_argument("--sims", type=int, default=200, help="simulated datasets (default 200)")
-    sb.add_argument("--backend", default="nuts", choices=["nuts", "laplace"])
+    sb.add_argument("--backend", default="nuts", choices=backends.names(batched=True))
     sb.add_argument("--out", required=True, help="output stem: writes STEM.csv, STEM.md, STEM.png")
     sb.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     sb.set_defaults(func=_cmd_sbc)
@@ -159,7 +159,7 @@ def _parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="simulate the seed 000 camera, fit it, compare with least squares")
     d.add_argument("--out", default="demo-out", help="output directory (default demo-out)")
     d.add_argument("--seed", type=int, default=0, help=SEED_HELP)
-    d.add_argument("--backend", default="nuts", choices=["nuts", "emcee", "laplace"], help="backend (default nuts)")
+    d.add_argument("--backend", default="nuts", choices=backends.names(), help="backend (default nuts)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=_cmd_demo)
     return p

@@ -21,16 +21,15 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from . import __version__
+from . import __version__, backends
 from .assemble import CalibrationModel, build_model
+from .backends import BASELINE
 from .derived import DIMS, physical_draws
-from .diagnostics import Diagnostics, mcmc_diagnostics
+from .diagnostics import Diagnostics
 from .errors import FitFailedError, FitFailedWarning, SpecError
 from .holdout import holdout_checks
-from .inference.emcee_backend import run_emcee
-from .inference.laplace import integrated_draws, laplace, laplace_draws
+from .inference.laplace import laplace
 from .inference.lsq import lsq_baseline
-from .inference.nuts import run_nuts
 from .inference.program import program_for
 from .inference.start import initial_point
 from .io import staged_directory, write_json_atomic
@@ -40,7 +39,8 @@ from .table import MeasurementTable
 
 __all__ = ["Fit", "fit", "BACKENDS", "REPORTED"]
 
-BACKENDS = ("nuts", "laplace", "emcee", "lsq")
+#: the posterior backends (:mod:`bayescal.inference.backends`) and the least-squares baseline
+BACKENDS = tuple(backends.names(baseline=True))
 #: quantities in the summary, in order
 REPORTED = (
     "gain",
@@ -255,87 +255,48 @@ def fit(
     model = build_model(table, spec)
     lsq = lsq_baseline(table, orders=range(1, spec.response.order + 1), full_scale=spec.full_scale)
     timings = {"prepare": time.perf_counter() - t0}
-    if backend == "lsq":
-        fitted = set(lsq["channel"]) if len(lsq) else set()
-        missing = [c for c in model.layout.channels if c not in fitted]
-        problems = (
-            (
-                f"least squares fitted nothing for channel(s) {', '.join(missing)}: no exposure/gain/TDI setting "
-                f"has {spec.response.order + 2} or more distinct unsaturated levels",
-            )
-            if missing
-            else ()
-        )
-        diag = Diagnostics(not problems, problems, extra={"note": "least squares: no posterior"})
-        return Fit(model, backend, seed, None, diag, lsq, timings)
+    if backend == BASELINE:
+        return Fit(model, backend, seed, None, _lsq_diagnostics(model, lsq), lsq, timings)
     stage("finding the posterior mode (the first fit of a model structure compiles it; cached afterwards)")
     program = program_for(model)
     t1 = time.perf_counter()
     result = laplace(program, model.data, initial_point(model, program))
     timings["map"] = time.perf_counter() - t1
-    extra = {"map_converged": result.converged, "hessian_positive_definite": result.positive_definite}
     if not result.positive_definite:
         _fail(
             strict, "the posterior mode's Hessian is not positive definite: the model is not identified by these data"
         )
     t2 = time.perf_counter()
-    divergences, stats = 0, {}
-    if backend == "laplace":
-        z = _laplace_z(model, program, result, seed, extra)
-    elif backend == "nuts":
-        inf = spec.inference
-        stage(f"sampling: NUTS, {inf.chains} chains x ({inf.warmup} warmup + {inf.draws} draws)")
-        out = run_nuts(program, model.data, result.mode, result.cov, spec.inference, seed, progress)
-        note_retry(out, spec.inference, extra)
-        z, divergences, stats = out.z, int(out.diverging.sum()), _nuts_stats(out)
-    else:
-        out = run_emcee(program, model.data, result.mode, result.cov, spec.inference, seed, progress)
-        z = out.z
-        extra.update(
-            acceptance_fraction=out.acceptance, max_autocorr_steps=out.autocorr_steps, n_eff=out.n_eff, thin=out.thin
-        )
+    draws = backends.get(backend).sample(model, program, result, seed, progress, stage)
+    draws.extra = {"map_converged": result.converged, "hessian_positive_definite": result.positive_definite} | (
+        draws.extra
+    )
     timings[backend] = time.perf_counter() - t2
     stage("diagnostics, misfit checks and the posterior in physical units")
-    return _finish(model, program, z, backend, seed, divergences, stats, extra, result, lsq, timings, strict)
+    return _finish(model, program, draws, backend, seed, result, lsq, timings, strict)
 
 
-def _laplace_z(model: CalibrationModel, program, result, seed: int, extra: dict) -> np.ndarray:
-    """Laplace draws ``(1, n, dim)``, the excess-scatter scale integrated numerically when present."""
-    settings = model.spec.inference
-    scale = program.site_index("excess")
-    if scale is not None and settings.laplace_integrate and result.positive_definite:
-        z, info = integrated_draws(program, model.data, result, scale, settings.laplace_draws, seed)
-        extra["integrated_scale_edge_weight"] = info["edge_weight"]
-    else:
-        z = laplace_draws(result, settings.laplace_draws, seed)
-    if model.parts.response.spec.pooled or model.parts.dark.spec.pooled:
-        extra["warning"] = "pooling scales make the Laplace approximation unreliable; use nuts"
-    return z[None]
-
-
-def note_retry(out, settings, extra: dict) -> None:
-    """Record in ``extra`` that the chains were rerun with smaller steps after divergences."""
-    if out.first_divergences:
-        extra["retried"] = (
-            f"{out.first_divergences} divergent transitions at target_accept {settings.target_accept:g}; "
-            f"chains rerun at {settings.retry_target_accept:g}"
+def _lsq_diagnostics(model: CalibrationModel, lsq: pd.DataFrame) -> Diagnostics:
+    """The baseline's verdict: every channel got a least-squares fit at some setting."""
+    fitted = set(lsq["channel"]) if len(lsq) else set()
+    missing = [c for c in model.layout.channels if c not in fitted]
+    problems = (
+        (
+            f"least squares fitted nothing for channel(s) {', '.join(missing)}: no exposure/gain/TDI setting "
+            f"has {model.spec.response.order + 2} or more distinct unsaturated levels",
         )
+        if missing
+        else ()
+    )
+    return Diagnostics(not problems, problems, extra={"note": "least squares: no posterior"})
 
 
-def _nuts_stats(out) -> dict:
-    return {
-        "diverging": out.diverging,
-        "tree_steps": out.num_steps,
-        "accept_prob": out.accept_prob,
-        "energy": out.energy,
-    }
-
-
-def _finish(model, program, z, backend, seed, divergences, stats, extra, result, lsq, timings, strict) -> Fit:
-    """From unconstrained draws ``(chain, draw, dim)`` to a diagnosed :class:`Fit`."""
+def _finish(model, program, draws, backend, seed, result, lsq, timings, strict) -> Fit:
+    """From a backend's unconstrained draws ``(chain, draw, dim)`` to a diagnosed :class:`Fit`."""
     spec, table = model.spec, model.table
+    z, stats = draws.z, draws.stats
     post, rows = _posterior(model, program, z, seed)
-    diag = _diagnose(backend, post, divergences, spec, extra, result)
+    diag = backends.get(backend).verdict(draws, post, spec, result)
     diag = _check_outliers(model, rows, diag)
     diag = _check_misfit(model, rows, post, diag)
     if spec.inference.holdout_check and result.positive_definite:
@@ -456,27 +417,6 @@ def _check_holdout(model: CalibrationModel, program, mode, seed: int, diag: Diag
     if not problems:
         return replace(diag, extra=extra)
     return replace(diag, ok=False, problems=diag.problems + tuple(problems), extra=extra)
-
-
-def _diagnose(backend, post, divergences, spec, extra, result) -> Diagnostics:
-    if backend == "laplace":
-        problems = [] if (result.positive_definite and result.converged) else ["MAP did not converge"]
-        if extra.get("integrated_scale_edge_weight", 0.0) > 0.01:
-            problems.append("the excess-scatter integration grid is truncated (posterior far from its mode); use nuts")
-        return Diagnostics(not problems, tuple(problems), extra=extra)
-    ds = xr.Dataset(
-        {
-            k: (("chain", "draw") + tuple(f"{k}_{i}" for i in range(v.ndim - 2)), v)
-            for k, v in post.items()
-            if k != "sphere_scale" and not k.startswith("setting_factor_")  # constants at the reference
-        }
-    )
-    settings = spec.inference
-    if backend == "emcee":  # walkers are not independent chains: judge ESS from the autocorrelation time
-        n_eff = extra["n_eff"]
-        problems = () if n_eff >= settings.min_ess else (f"effective sample size {n_eff:.0f} < {settings.min_ess:.0f}",)
-        return Diagnostics(not problems, problems, min_ess_bulk=n_eff, extra=extra)
-    return mcmc_diagnostics(ds, divergences, settings, extra)
 
 
 def _fail(strict: bool, message: str) -> None:

@@ -1,0 +1,139 @@
+"""The shipped posterior backends: Laplace, NUTS (numpyro), emcee; each registers itself.
+
+All three start from the Laplace result at the posterior mode: Laplace draws
+from it (the excess-scatter scale integrated numerically), NUTS runs in
+coordinates whitened by its covariance, emcee starts its walkers around it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import xarray as xr
+
+from ..backends import Draws, register
+from ..diagnostics import Diagnostics, mcmc_diagnostics
+from .emcee_backend import run_emcee
+from .laplace import integrated_draws, laplace_draws
+from .nuts import run_nuts
+
+__all__ = ["LaplaceBackend", "NutsBackend", "EmceeBackend", "laplace_z", "note_retry", "nuts_stats"]
+
+
+def laplace_z(model, program, result, seed: int, extra: dict) -> np.ndarray:
+    """Laplace draws ``(1, n, dim)``, the excess-scatter scale integrated numerically when present."""
+    settings = model.spec.inference
+    scale = program.site_index("excess")
+    if scale is not None and settings.laplace_integrate and result.positive_definite:
+        z, info = integrated_draws(program, model.data, result, scale, settings.laplace_draws, seed)
+        extra["integrated_scale_edge_weight"] = info["edge_weight"]
+    else:
+        z = laplace_draws(result, settings.laplace_draws, seed)
+    if model.parts.response.spec.pooled or model.parts.dark.spec.pooled:
+        extra["warning"] = "pooling scales make the Laplace approximation unreliable; use nuts"
+    return z[None]
+
+
+def laplace_problems(result, extra: dict) -> list[str]:
+    """Why Laplace draws cannot be used: the mode search did not converge, or the integration grid is cut."""
+    problems = [] if (result.positive_definite and result.converged) else ["MAP did not converge"]
+    if extra.get("integrated_scale_edge_weight", 0.0) > 0.01:
+        problems.append("the excess-scatter integration grid is truncated (posterior far from its mode); use nuts")
+    return problems
+
+
+def note_retry(out, settings, extra: dict) -> None:
+    """Record in ``extra`` that the chains were rerun with smaller steps after divergences."""
+    if out.first_divergences:
+        extra["retried"] = (
+            f"{out.first_divergences} divergent transitions at target_accept {settings.target_accept:g}; "
+            f"chains rerun at {settings.retry_target_accept:g}"
+        )
+
+
+def nuts_stats(out) -> dict:
+    """Per-draw NUTS statistics for arviz's ``sample_stats``."""
+    return {
+        "diverging": out.diverging,
+        "tree_steps": out.num_steps,
+        "accept_prob": out.accept_prob,
+        "energy": out.energy,
+    }
+
+
+def _chains_dataset(posterior: dict) -> xr.Dataset:
+    """Physical draws ``(chain, draw, ...)`` for R-hat and ESS; the reference constants left out."""
+    return xr.Dataset(
+        {
+            k: (("chain", "draw") + tuple(f"{k}_{i}" for i in range(v.ndim - 2)), v)
+            for k, v in posterior.items()
+            if k != "sphere_scale" and not k.startswith("setting_factor_")  # constants at the reference
+        }
+    )
+
+
+@dataclass(frozen=True)
+class LaplaceBackend:
+    """Gaussian at the mode (the fast path; the excess-scatter scale integrated on a grid)."""
+
+    name: str = "laplace"
+    description: str = "Gaussian at the posterior mode (fast)"
+    batched: bool = True
+
+    def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
+        extra: dict = {}
+        return Draws(laplace_z(model, program, mode, seed, extra), extra=extra)
+
+    def verdict(self, draws: Draws, posterior: dict, spec, mode) -> Diagnostics:
+        problems = laplace_problems(mode, draws.extra)
+        return Diagnostics(not problems, tuple(problems), extra=draws.extra)
+
+
+@dataclass(frozen=True)
+class NutsBackend:
+    """numpyro NUTS in Laplace-whitened coordinates, rerun with smaller steps after divergences."""
+
+    name: str = "nuts"
+    description: str = "numpyro NUTS (default)"
+    batched: bool = True
+
+    def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
+        inf = model.spec.inference
+        stage(f"sampling: NUTS, {inf.chains} chains x ({inf.warmup} warmup + {inf.draws} draws)")
+        out = run_nuts(program, model.data, mode.mode, mode.cov, inf, seed, progress)
+        extra: dict = {}
+        note_retry(out, inf, extra)
+        return Draws(out.z, int(out.diverging.sum()), nuts_stats(out), extra)
+
+    def verdict(self, draws: Draws, posterior: dict, spec, mode) -> Diagnostics:
+        return mcmc_diagnostics(_chains_dataset(posterior), draws.divergences, spec.inference, draws.extra)
+
+
+@dataclass(frozen=True)
+class EmceeBackend:
+    """emcee's affine-invariant ensemble, walkers started around the mode."""
+
+    name: str = "emcee"
+    description: str = "emcee ensemble sampler"
+    batched: bool = False
+
+    def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
+        inf = model.spec.inference
+        stage(f"sampling: emcee, {inf.emcee_burn} burn-in + {inf.emcee_steps} steps")
+        out = run_emcee(program, model.data, mode.mode, mode.cov, inf, seed, progress)
+        extra = dict(
+            acceptance_fraction=out.acceptance, max_autocorr_steps=out.autocorr_steps, n_eff=out.n_eff, thin=out.thin
+        )
+        return Draws(out.z, extra=extra)
+
+    def verdict(self, draws: Draws, posterior: dict, spec, mode) -> Diagnostics:
+        # walkers are not independent chains: judge ESS from the autocorrelation time
+        n_eff, need = draws.extra["n_eff"], spec.inference.min_ess
+        problems = () if n_eff >= need else (f"effective sample size {n_eff:.0f} < {need:.0f}",)
+        return Diagnostics(not problems, problems, min_ess_bulk=n_eff, extra=draws.extra)
+
+
+for _backend in (NutsBackend(), LaplaceBackend(), EmceeBackend()):
+    register(_backend)
