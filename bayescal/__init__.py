@@ -20,9 +20,8 @@ import types
 from typing import TYPE_CHECKING, Any
 
 from ._config import enable_compilation_cache, enable_float64, enable_numerics
+from ._version import __version__
 from .errors import BayescalError, FitFailedError, FitFailedWarning, SpecError, TableError
-
-__version__ = "0.1.0"
 
 #: public name -> module that defines it
 _LAZY = {

@@ -126,7 +126,7 @@ def read_descriptor(path: str | os.PathLike, progress: Callable[[int], None] | N
             f"{path}: {len(missing)} image(s) listed in the descriptor are missing, e.g. {missing[0]}; "
             "characterize the cropped arrays (crop128.npz) or a reduced steps.csv instead"
         )
-    from .images import read_image
+    from .io import read_image
 
     sat = 2**bits - 1
     rows, stacks = [], {}

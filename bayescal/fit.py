@@ -21,7 +21,8 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from . import __version__, backends
+from . import backends
+from ._version import __version__
 from .assemble import CalibrationModel, build_model
 from .backends import BASELINE
 from .derived import DIMS, physical_draws

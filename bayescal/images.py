@@ -19,35 +19,11 @@ import xarray as xr
 from .calibration import Calibration, Setting
 from .errors import SpecError, TableError
 from .invert import BOUND_NAMES, inversion_lut, invert
-from .io import staged_directory
+from .io import read_image, staged_directory
 
 __all__ = ["read_image", "channel_map", "channel_views", "invert_image", "write_radiance_maps", "CFA_PATTERNS"]
 
 CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
-
-
-def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Read a TIFF, PNG or NPY image as a 2-D (mosaic or mono) or 3-D (H, W, C) array."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if not path.exists():
-        raise FileNotFoundError(f"no such image: {path}")
-    if suffix in (".tif", ".tiff"):
-        import tifffile
-
-        img = tifffile.imread(path)
-    elif suffix == ".png":
-        from PIL import Image
-
-        with Image.open(path) as im:
-            img = np.asarray(im)
-    elif suffix == ".npy":
-        img = np.load(path, allow_pickle=False)
-    else:
-        raise TableError(f"{path}: unsupported image type '{suffix}'; expected .tif, .tiff, .png or .npy")
-    if img.ndim not in (2, 3):
-        raise TableError(f"{path}: expected a 2-D image or an (H, W, C) stack, got shape {img.shape}")
-    return img
 
 
 def channel_map(shape: tuple[int, int], cfa: str) -> np.ndarray:

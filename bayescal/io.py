@@ -19,6 +19,7 @@ __all__ = [
     "write_json_atomic",
     "staged_directory",
     "check_output_dir",
+    "read_image",
     "MARKER",
 ]
 
@@ -162,7 +163,7 @@ def staged_directory(out_dir: str | os.PathLike, kind: str = "output") -> Iterat
 
     try:
         yield stage
-        from . import __version__
+        from ._version import __version__
 
         (staging / MARKER).write_text(json.dumps({"kind": kind, "bayescal_version": __version__}) + "\n")
         os.chmod(staging, 0o777 & ~_umask())
@@ -176,3 +177,31 @@ def staged_directory(out_dir: str | os.PathLike, kind: str = "output") -> Iterat
     finally:
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:  # noqa: F821 - numpy imported on use
+    """Read a TIFF, PNG or NPY image as a 2-D (mosaic or mono) or 3-D (H, W, C) array."""
+    import numpy as np
+
+    from .errors import TableError
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if not path.exists():
+        raise FileNotFoundError(f"no such image: {path}")
+    if suffix in (".tif", ".tiff"):
+        import tifffile
+
+        img = tifffile.imread(path)
+    elif suffix == ".png":
+        from PIL import Image
+
+        with Image.open(path) as im:
+            img = np.asarray(im)
+    elif suffix == ".npy":
+        img = np.load(path, allow_pickle=False)
+    else:
+        raise TableError(f"{path}: unsupported image type '{suffix}'; expected .tif, .tiff, .png or .npy")
+    if img.ndim not in (2, 3):
+        raise TableError(f"{path}: expected a 2-D image or an (H, W, C) stack, got shape {img.shape}")
+    return img

@@ -34,6 +34,7 @@ from .figures import png_base64, subplots
 from .invert import invert, radiance_draws
 from .io import write_json_atomic, write_text_atomic
 from .predict import predict
+from .report_text import fmt, markdown_table, table_rows
 
 __all__ = ["write_report", "uncertainty_budget"]
 
@@ -324,35 +325,11 @@ def _fig_trace(tree, cal: Calibration) -> str:
 
 
 # ----------------------------------------------------------------- output
-def _fmt(v, digits: int = 5) -> str:
-    if v is None or (isinstance(v, float) and not np.isfinite(v)):
-        return "-" if v is None or np.isnan(v) else ("inf" if v > 0 else "-inf")
-    if isinstance(v, (bool, np.bool_)):
-        return str(bool(v))
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    if isinstance(v, (float, np.floating)):
-        return f"{v:.{digits}g}"
-    return str(v)
-
-
-def _table_rows(df: pd.DataFrame) -> tuple[list[str], list[list[str]]]:
-    return list(df.columns), [[_fmt(v) for v in row] for row in df.itertuples(index=False)]
-
-
 def _html_table(df: pd.DataFrame) -> str:
-    head, rows = _table_rows(df)
+    head, rows = table_rows(df)
     th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
     return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
-
-
-def markdown_table(df: pd.DataFrame) -> str:
-    """A DataFrame as a Markdown table (numbers to 5 significant digits)."""
-    head, rows = _table_rows(df)
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
 
 
 def _markdown(data, coef, lsq_ref, budget, examples) -> str:
@@ -361,8 +338,8 @@ def _markdown(data, coef, lsq_ref, budget, examples) -> str:
         f"# Calibration report: {data['model']['name']}",
         "",
         f"**Status: {data['status']}** ({data['verdict']}); backend {data['backend']}, seed {data['seed']}; "
-        f"divergences {d.get('divergences')}, max R-hat {_fmt(d.get('max_rhat'))}, "
-        f"min bulk ESS {_fmt(d.get('min_ess_bulk'))}.",
+        f"divergences {d.get('divergences')}, max R-hat {fmt(d.get('max_rhat'))}, "
+        f"min bulk ESS {fmt(d.get('min_ess_bulk'))}.",
         "",
         f"## Coefficients at the reference setting (DN = A0 + A1 L + ..., L in {data['stimulus_unit']})",
         "",

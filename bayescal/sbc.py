@@ -38,7 +38,7 @@ from .errors import SpecError, TableError
 from .fit import SAMPLED
 from .inference.program import program_for
 from .io import atomic_path, write_text_atomic
-from .report import markdown_table
+from .report_text import markdown_table
 
 __all__ = ["CAMERA_CLASS_PRIORS", "SBCResult", "prior_datasets", "rank_statistics", "run_sbc"]
 
