@@ -37,7 +37,8 @@ from .inference.laplace import laplace, laplace_draws
 
 __all__ = ["holdout_groups", "holdout_checks"]
 
-#: draws of the refitted posterior per group
+#: draws of the refitted posterior per group (the z statistic's sd is then estimated to ~5 %; moving
+#: 4000 draws of every row's prediction off the device cost 0.9 s per fit of the seed-000 model)
 N_DRAWS = 200
 
 _REMEDY = {
@@ -77,7 +78,9 @@ def pd_unique(values: np.ndarray) -> list:
     return [values[i] for i in sorted(first)]
 
 
-def holdout_checks(model, program, mode: np.ndarray, z_threshold: float, seed: int = 0) -> tuple[list[str], dict]:
+def holdout_checks(
+    model, program, mode: np.ndarray, z_threshold: float, seed: int = 0, n_draws: int = N_DRAWS
+) -> tuple[list[str], dict]:
     """Run the check on a fitted model; returns the problems and, per group, the numbers behind them.
 
     Parameters
@@ -92,6 +95,8 @@ def holdout_checks(model, program, mode: np.ndarray, z_threshold: float, seed: i
         ``|z|`` above which a group is reported.
     seed : int
         Seed of the refits' Laplace draws.
+    n_draws : int
+        Draws per refit.
     """
     data, frame, scale = model.data, model.table.frame, model.layout.dn_scale
     censored = np.asarray(data.censored)
@@ -108,7 +113,7 @@ def holdout_checks(model, program, mode: np.ndarray, z_threshold: float, seed: i
         if not (result.positive_definite and result.converged):
             rows.append({"kind": kind, "group": name, "n": int(idx.size), "z": float("nan"), "refit": "failed"})
             continue
-        sites = program.constrain(laplace_draws(result, N_DRAWS, seed), held)
+        sites = program.constrain(laplace_draws(result, n_draws, seed), held)
         mu = np.asarray(sites["row_mean"])[:, idx]
         sd = np.asarray(sites["row_sd"])[:, idx]
         avg = mu.mean(axis=1)

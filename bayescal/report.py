@@ -106,7 +106,7 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
     figures = {
         "response": _fig_response(cal, frame, lsq),
         "residuals": _fig_residuals(cal, frame),
-        "misfit": _fig_misfit(summary["diagnostics"].get("misfit")),
+        "misfit": _fig_misfit(summary["diagnostics"].get("misfit"), summary["diagnostics"].get("holdout")),
         "budget": _fig_budget(budget),
         "trace": _fig_trace(tree, cal),
     }
@@ -274,9 +274,10 @@ def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
     return _png(fig)
 
 
-def _fig_misfit(misfit: dict | None) -> str:
-    """The misfit checks (:mod:`bayescal.misfit`): residual sums per group of rows, and the excess scatter."""
-    fig, (ax, bx) = subplots(1, 2, figsize=(11, 3.4), gridspec_kw={"width_ratios": [4, 1]})
+def _fig_misfit(misfit: dict | None, holdout: dict | None = None) -> str:
+    """The misfit checks (:mod:`bayescal.misfit`): residual sums per group of rows, each setting's rows
+    left out and predicted by the rest (:mod:`bayescal.holdout`), and the excess scatter."""
+    fig, (ax, hx, bx) = subplots(1, 3, figsize=(13, 3.6), gridspec_kw={"width_ratios": [4, 2, 1]})
     limits = (misfit or {}).get("thresholds", {"excess_ratio": 10.0, "group_z": 4.0})
     zmax, rmax = limits["group_z"], limits["excess_ratio"]
     groups = pd.DataFrame((misfit or {}).get("groups", []))
@@ -289,6 +290,20 @@ def _fig_misfit(misfit: dict | None) -> str:
         for level in (-zmax, zmax):
             ax.axhline(level, color="C3", lw=0.8, ls="--")
         ax.set(ylabel="sum of residuals / sqrt(n)  (sd)", title=f"residuals by group of rows (|z| > {zmax:g}: flagged)")
+    held = pd.DataFrame((holdout or {}).get("groups", []))
+    if len(held):
+        held = held[np.isfinite(pd.to_numeric(held["z"], errors="coerce").to_numpy(dtype=float))]
+        names = [
+            g.replace("the illuminated ", "").replace("the dark rows at ", "dark ").replace(" rows", "")
+            for g in held["group"]
+        ]
+        hx.bar(range(len(held)), held["z"], color=["C3" if abs(z) > zmax else "C0" for z in held["z"]])
+        hx.set_xticks(range(len(held)), names, rotation=60, ha="right", fontsize=7)
+        for level in (-zmax, zmax):
+            hx.axhline(level, color="C3", lw=0.8, ls="--")
+        hx.set(ylabel="(reading - predicted) / sd", title="left out, predicted by the rest")
+    else:
+        hx.set_axis_off()
     ratio = (misfit or {}).get("excess_ratio")
     if ratio is not None:
         bx.bar([0], [ratio], color="C3" if ratio > rmax else "C0")
