@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -25,6 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     from ._config import enable_numerics
     from .errors import BayescalError
 
+    previous = _catch_interrupts()
     try:
         enable_numerics()
         return args.func(args)
@@ -35,12 +37,36 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bayescal: error: {_os_message(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        # staged outputs were removed while the interrupt unwound; chains still running in worker
-        # threads cannot be stopped from Python, so leave without waiting for them
-        print("\nbayescal: interrupted; no output was written or replaced", file=sys.stderr)
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(130)
+        _interrupted()
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+
+
+def _interrupted(*_) -> None:
+    """Ctrl-C: remove staged outputs and leave at once with status 130.
+
+    Installed as the SIGINT handler rather than left to ``KeyboardInterrupt``,
+    which JAX's garbage-collection callback can swallow (the run then went on
+    to finish with status 0); chains still running in worker threads cannot be
+    stopped from Python, so the process does not wait for them.
+    """
+    from .io import discard_staging
+
+    discard_staging()
+    print("\nbayescal: interrupted; no output was written or replaced", file=sys.stderr)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(130)
+
+
+def _catch_interrupts():
+    """Install :func:`_interrupted` for SIGINT (main thread only); returns the previous handler."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGINT, _interrupted)
 
 
 def _os_message(exc: BaseException) -> str:

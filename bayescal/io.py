@@ -23,6 +23,8 @@ __all__ = [
     "MARKER",
 ]
 
+#: staging directories of outputs being written in this process (removed on an interrupt)
+_STAGING: set[Path] = set()
 #: written into every output directory bayescal makes; a directory with it may be replaced by a later run
 MARKER = ".bayescal-output"
 #: files that identify a directory written by an earlier bayescal version (before the marker)
@@ -155,6 +157,7 @@ def staged_directory(out_dir: str | os.PathLike, kind: str = "output") -> Iterat
     out_dir = check_output_dir(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.staging.", dir=out_dir.parent))
+    _STAGING.add(staging)
 
     def stage(name: str) -> Path:
         path = staging / name
@@ -175,8 +178,16 @@ def staged_directory(out_dir: str | os.PathLike, kind: str = "output") -> Iterat
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
     finally:
+        _STAGING.discard(staging)
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
+
+
+def discard_staging() -> None:
+    """Remove the staging directories of outputs still being written (an interrupted run leaves none)."""
+    for path in list(_STAGING):
+        shutil.rmtree(path, ignore_errors=True)
+        _STAGING.discard(path)
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:  # noqa: F821 - numpy imported on use
