@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import base64
 import io
-import os
 
-__all__ = ["subplots", "colours", "png_base64", "save"]
+__all__ = ["subplots", "colours", "png_base64"]
 
 
 def subplots(*args, figsize: tuple[float, float], **kwargs):
@@ -35,8 +34,3 @@ def png_base64(fig, dpi: int = 110) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     return base64.b64encode(buf.getvalue()).decode("ascii")
-
-
-def save(fig, path: str | os.PathLike, dpi: int = 110, **kwargs) -> None:
-    """Write the figure to ``path`` (format from the suffix)."""
-    fig.savefig(path, dpi=dpi, **kwargs)

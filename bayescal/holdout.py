@@ -32,6 +32,7 @@ its label than its tolerance allows; that is the check's intent.
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 
 from .inference.laplace import laplace, laplace_draws
 
@@ -59,23 +60,17 @@ def holdout_groups(frame, lit: np.ndarray, darks: bool = True) -> list[tuple[str
     groups = []
     for column, label in (("gain", "gain {v:g}"), ("exposure_s", "exposure {v:g} s"), ("tdi_stages", "TDI {v:g}")):
         values = frame[column].to_numpy()
-        distinct = pd_unique(values[lit])
+        distinct = pd.unique(values[lit])
         if len(distinct) < 2:
             continue
         for v in distinct:
             groups.append((column, f"the illuminated {label.format(v=v)} rows", lit & (values == v)))
     gains = frame["gain"].to_numpy()
-    for g in pd_unique(gains[~lit]) if darks else []:
+    for g in pd.unique(gains[~lit]) if darks else []:
         mask = ~lit & (gains == g)
         if np.any(lit & (gains == g)):
             groups.append(("dark", f"the dark rows at gain {g:g}", mask))
     return groups
-
-
-def pd_unique(values: np.ndarray) -> list:
-    """Distinct values in order of first appearance."""
-    _, first = np.unique(values, return_index=True)
-    return [values[i] for i in sorted(first)]
 
 
 def holdout_checks(

@@ -10,7 +10,10 @@ import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # numpy is imported on use: the CLI's help stays instant
+    import numpy as np
 
 __all__ = [
     "read_text",
@@ -190,7 +193,7 @@ def discard_staging() -> None:
         _STAGING.discard(path)
 
 
-def read_image(path: str | os.PathLike) -> np.ndarray:  # noqa: F821 - numpy imported on use
+def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read a TIFF, PNG or NPY image as a 2-D (mosaic or mono) or 3-D (H, W, C) array."""
     import numpy as np
 
