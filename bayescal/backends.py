@@ -41,12 +41,10 @@ class Backend(Protocol):
     """A posterior sampler.
 
     ``sample(model, program, mode, seed, progress, stage)`` returns :class:`Draws`;
-    ``problems(draws, posterior, spec, mode)`` returns what is wrong with them
-    (empty: they can be used) together with the MCMC summary numbers.
+    ``verdict(draws, posterior, spec, mode)`` judges them (a :class:`Diagnostics`).
     """
 
     name: str
-    description: str
     batched: bool  # has a vectorised path for many datasets of one structure (fit_many)
 
     def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws: ...
@@ -55,7 +53,8 @@ class Backend(Protocol):
 
 
 #: the shipped backends: name -> (module that registers it, has a fit_many path, description).  Read
-#: without importing the modules (they pull in JAX), so the command line's help stays instant.
+#: without importing the modules (they pull in JAX), so the command line's help stays instant; the
+#: backend classes take their ``batched`` flag from here.
 SHIPPED: dict[str, tuple[str, bool, str]] = {
     "nuts": ("bayescal.inference.samplers", True, "numpyro NUTS in Laplace-whitened coordinates"),
     "laplace": ("bayescal.inference.samplers", True, "Gaussian at the posterior mode (fast)"),

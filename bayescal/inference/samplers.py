@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from ..backends import Draws, register
+from ..backends import SHIPPED, Draws, register
 from ..diagnostics import Diagnostics, mcmc_diagnostics
 from .emcee_backend import run_emcee
 from .laplace import integrated_draws, laplace_draws
@@ -79,8 +79,7 @@ class LaplaceBackend:
     """Gaussian at the mode (the fast path; the excess-scatter scale integrated on a grid)."""
 
     name: str = "laplace"
-    description: str = "Gaussian at the posterior mode (fast)"
-    batched: bool = True
+    batched: bool = SHIPPED["laplace"][1]
 
     def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
         extra: dict = {}
@@ -96,8 +95,7 @@ class NutsBackend:
     """numpyro NUTS in Laplace-whitened coordinates, rerun with smaller steps after divergences."""
 
     name: str = "nuts"
-    description: str = "numpyro NUTS (default)"
-    batched: bool = True
+    batched: bool = SHIPPED["nuts"][1]
 
     def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
         inf = model.spec.inference
@@ -116,8 +114,7 @@ class EmceeBackend:
     """emcee's affine-invariant ensemble, walkers started around the mode."""
 
     name: str = "emcee"
-    description: str = "emcee ensemble sampler"
-    batched: bool = False
+    batched: bool = SHIPPED["emcee"][1]
 
     def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
         inf = model.spec.inference
