@@ -41,7 +41,7 @@ class ModelData(NamedTuple):
     var_meas: jnp.ndarray  # measured per-pixel variance / full scale^2 (1 if absent)
     n_avg: jnp.ndarray  # n_frames * n_pixels
     censored: jnp.ndarray  # bool, right-censored at the threshold
-    threshold: jnp.ndarray  # per row, censoring threshold / full scale (see censoring())
+    threshold: jnp.ndarray  # scalar, censoring threshold / full scale
     temp: jnp.ndarray  # temperature - dark.temperature_ref_c (degC; 0 without a temperature model)
     time: jnp.ndarray  # time_s / the run's duration (0 without a drift model): 0 at the start of the run
     keep: jnp.ndarray  # bool, the row's reading enters the likelihood (False: held out, predicted only)
@@ -90,16 +90,6 @@ def effective_stimulus(
     return stimulus * (exposure_s * tdi * gain) / (ref.exposure_s * ref.tdi_stages * ref.gain)
 
 
-def censoring(y_dn: np.ndarray, spec: ModelSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Each row's censoring threshold (DN) and whether the row is censored: a row reading at or above
-    full scale minus ``saturation.margin_dn`` is clipped and says only that its mean lies above that.
-    (Rows that are only partly clipped are handled in the likelihood, :mod:`bayescal.components.saturation`.)
-    """
-    sat = spec.saturation
-    threshold = np.full(np.shape(y_dn), spec.full_scale - sat.margin_dn)
-    return threshold, (np.asarray(y_dn) >= threshold) & sat.censor
-
-
 def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout]:
     """Check the table against the spec and build the scaled model inputs.
 
@@ -134,9 +124,9 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
     if not np.any(~dark):
         raise TableError("the table has only dark rows; expected illuminated rows too", column=table.stimulus)
     y = df["dn_mean"].to_numpy() / dn_scale
-    threshold_dn, censored = censoring(df["dn_mean"].to_numpy(), spec)
-    threshold = threshold_dn / dn_scale
-    saturated = y >= (dn_scale - spec.saturation.margin_dn) / dn_scale
+    threshold = (dn_scale - spec.saturation.margin_dn) / dn_scale
+    saturated = y >= threshold
+    censored = saturated & spec.saturation.censor
     _check_levels_per_channel(df, dark, saturated, x, spec)
 
     channels = tuple(table.channels)

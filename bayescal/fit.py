@@ -319,14 +319,6 @@ def _finish(model, program, draws, backend, seed, result, lsq, timings, strict) 
         )
     dt.attrs.update(spec_toml=spec.to_toml(), backend=backend, seed=seed, bayescal_version=__version__)
     dt["measurements"] = xr.DataTree(_table_dataset(table))
-    dt["constant_data"] = xr.DataTree(
-        xr.Dataset(
-            {
-                "censored": ("row", np.asarray(model.data.censored)),
-                "threshold_dn": ("row", np.asarray(model.data.threshold) * model.layout.dn_scale),
-            }
-        )
-    )
     return Fit(model, backend, seed, dt, diag, lsq, timings)
 
 

@@ -96,8 +96,6 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
     tree = az.from_netcdf(fit_dir / "posterior.nc")
     frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
     frame = frame.rename(columns={cal.stimulus: "stimulus"})
-    if "constant_data" in tree.children:  # rows used as lower bounds (clipped, or near full scale)
-        frame["censored"] = np.asarray(tree["constant_data"]["censored"])
     lsq = pd.DataFrame(summary["lsq"])
     coef = _coefficient_table(summary)
     lsq_ref = _lsq_at_reference(lsq, cal, summary)
@@ -216,7 +214,7 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
             ax.fill_between(grid, plo, phi, color=col, alpha=0.12, lw=0)
             ax.fill_between(grid, lo, hi, color=col, alpha=0.35, lw=0)
             ax.plot(grid, np.median(mean, axis=0), color=col, lw=1.2, label=f"{t:g} s, gain {g:g}")
-            cens = rows["censored"] if "censored" in rows else rows["dn_mean"] >= cal.saturation_dn
+            cens = rows["dn_mean"] >= cal.saturation_dn
             ax.plot(rows["stimulus"][~cens], rows["dn_mean"][~cens], "o", color=col, ms=3.5)
             ax.plot(rows["stimulus"][cens], rows["dn_mean"][cens], "x", color="k", ms=6, mew=1.5)
             fitrow = lsq[(lsq.channel == ch) & np.isclose(lsq.exposure_s, t) & np.isclose(lsq.gain, g)]
@@ -231,8 +229,7 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
     fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
     fig.suptitle(
         "posterior median (line), 95 % credible and predictive bands (too narrow to see at this scale: the "
-        "residual panels below show them in sd units); dashed: least squares; x: censored (clipped, or near "
-        "full scale and used as a lower bound)",
+        "residual panels below show them in sd units); dashed: least squares; x: censored (clipped)",
         fontsize=9,
     )
     fig.tight_layout(rect=(0, 0.1, 1, 0.95))
@@ -255,7 +252,7 @@ def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
                 & np.isclose(frame.exposure_s, t)
                 & np.isclose(frame.gain, g)
                 & (frame["stimulus"] > 0)
-                & ~(frame["censored"] if "censored" in frame else frame.dn_mean >= cal.saturation_dn)
+                & (frame.dn_mean < cal.saturation_dn)
             ]
             if rows.empty:
                 continue

@@ -33,7 +33,7 @@ from scipy import stats
 
 from .assemble import CalibrationModel
 from .batch import FitBatch, _replace_data, fit_models
-from .data import _check_levels_per_channel, censoring
+from .data import _check_levels_per_channel
 from .errors import SpecError, TableError
 from .fit import SAMPLED
 from .inference.program import program_for
@@ -195,7 +195,7 @@ def prior_datasets(
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5BC]))
     frame = model.table.frame
     dark = np.asarray(data.u) == 0
-    full = (spec.full_scale - spec.saturation.margin_dn) / model.layout.dn_scale
+    threshold = float(data.threshold)
     upper = 1.0 + 0.5 / model.layout.dn_scale
     kept: list[CalibrationModel] = []
     truths: dict[str, list] = {k: [] for k in latent}
@@ -210,21 +210,14 @@ def prior_datasets(
         rejected += int((~possible).sum())
         for i in np.flatnonzero(possible):
             yi = y[i]
-            saturated = yi >= full
+            saturated = yi >= threshold
             try:
                 _check_levels_per_channel(frame, dark, saturated, np.asarray(data.u), spec)
             except TableError:
                 rejected += 1
                 continue
-            threshold, censored = censoring(yi * model.layout.dn_scale, spec)
-            kept.append(
-                _replace_data(
-                    model,
-                    y=jax.numpy.asarray(yi),
-                    censored=jax.numpy.asarray(censored),
-                    threshold=jax.numpy.asarray(threshold / model.layout.dn_scale),
-                )
-            )
+            censored = saturated & spec.saturation.censor
+            kept.append(_replace_data(model, y=jax.numpy.asarray(yi), censored=jax.numpy.asarray(censored)))
             for k in latent:
                 truths[k].append(draws[k][i])
             if len(kept) == n:
