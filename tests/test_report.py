@@ -100,9 +100,14 @@ def test_report_leaves_matplotlib_state_alone(report_dir, tmp_path):
     import matplotlib
     import matplotlib.pyplot as plt
 
-    backend, figures = matplotlib.get_backend(), plt.get_fignums()
-    write_report(report_dir, tmp_path / "again.html")
-    assert matplotlib.get_backend() == backend and plt.get_fignums() == figures
+    before = matplotlib.get_backend()
+    plt.switch_backend("svg")  # a user's own choice, and not the Agg that headless runs default to
+    try:
+        figures = plt.get_fignums()
+        write_report(report_dir, tmp_path / "again.html")
+        assert matplotlib.get_backend() == "svg" and plt.get_fignums() == figures
+    finally:
+        plt.switch_backend(before)
 
 
 def test_import_changes_no_global_state():
