@@ -308,15 +308,17 @@ def simulate_steps(
     n_pixels: int = 307200,
     bits: int = 12,
     nonlinearity: float = 0.0,
+    nonlinearity_power: float = 2.0,
     seed: int = 0,
 ) -> Steps:
     """An EMVA 1288 exposure sweep of a sensor with known truth (pair statistics, photon transfer).
 
     Mean signal ``mu = offset + f(e)``, ``e = QE mu_p + I t`` electrons, with
-    ``f(e) = K e (1 + a (e / e_fs)^2)``: linear for ``nonlinearity = a = 0``, a
-    cubic compression (``a < 0``) or expansion of relative size ``a`` at full
-    scale ``e_fs`` otherwise (a sense node or ADC that is not linear); ``K`` is
-    the small-signal conversion gain ``f'(0)``.  Temporal variance
+    ``f(e) = K e (1 + a (e / e_fs)^p)``, ``p = nonlinearity_power``: linear for
+    ``nonlinearity = a = 0``, a compression (``a < 0``) or expansion of relative
+    size ``a`` at full scale ``e_fs`` otherwise (a sense node or ADC that is not
+    linear; ``p = 2`` a cubic); ``K`` is the small-signal conversion gain
+    ``f'(0)``.  Temporal variance
     ``f'(e)^2 (sigma_d^2 + e) + 1/12``, observed through the sampling
     distribution of a pair variance (``chi^2`` with ``N - 1`` degrees of
     freedom) and a small step-to-step source jitter.  Steps clip at full scale.
@@ -330,8 +332,9 @@ def simulate_steps(
         p = mu_p if kind == "bright" else np.zeros(n_steps)
         electrons = qe * p + dark_current_e * t
         u = electrons * k / (fs - offset_dn)  # fraction of the range above the offset
-        mean = offset_dn + k * electrons * (1.0 + nonlinearity * u**2)
-        slope = k * (1.0 + 3.0 * nonlinearity * u**2)
+        p_nl = nonlinearity_power
+        mean = offset_dn + k * electrons * (1.0 + nonlinearity * u**p_nl)
+        slope = k * (1.0 + (p_nl + 1.0) * nonlinearity * u**p_nl)
         var = slope**2 * (sigma_d_e**2 + electrons) + 1.0 / 12.0
         var_hat = var * rng.chisquare(n_pixels - 1, n_steps) / (n_pixels - 1)
         mean_hat = mean + np.sqrt(var / n_pixels) * rng.standard_normal(n_steps)

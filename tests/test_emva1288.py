@@ -63,14 +63,14 @@ def test_posteriors_have_intervals_and_dark_currents_are_compared(full):
         assert row["q2.5"] < row["median"] < row["q97.5"], q
     for q in ("QE", "sigma_y_dark", "dark_current_mean", "dark_current_var", "LE_min", "LE_max"):
         assert t.loc[q, "q2.5"] <= t.loc[q, "standard"] <= t.loc[q, "q97.5"], q
-    # K and R are the small-signal slopes of cubics through the origin: on this CCD both curves bend, and the
-    # slopes at zero sit ~4 % above the standard's straight lines over 0-70 % of saturation (K 0.2917
-    # [0.2881, 0.2952] against 0.2801; a straight weighted line gave 0.2831); their ratio, QE, agrees with the
-    # standard's (asserted above: 44.7 [44.0, 45.4] % against 45.2 %)
-    assert t.loc["K", "standard"] < t.loc["K", "q2.5"] and t.loc["K", "median"] == pytest.approx(0.2917, rel=3e-3)
-    # K is pinned to about 1.2 % by 26 steps; the two dark currents (28.5 and 70.0 e-/s) differ by 2.5x,
+    # K and R are the small-signal slopes of quartics through the origin: on this CCD both curves bend, and the
+    # slopes at zero sit ~3 % above the standard's straight lines over 0-70 % of saturation (K 0.2876
+    # [0.2828, 0.2925] against 0.2801; a straight weighted line gave 0.2831); their ratio, QE, agrees with the
+    # standard's (asserted above: 45.8 [44.8, 46.7] % against 45.2 %)
+    assert t.loc["K", "standard"] < t.loc["K", "q2.5"] and t.loc["K", "median"] == pytest.approx(0.2876, rel=3e-3)
+    # K is pinned to about 3.4 % by 26 steps; the two dark currents (28.5 and 70.0 e-/s) differ by 2.5x,
     # yet the variance-based one is so uncertain that the difference is compatible with zero
-    assert (t.loc["K", "q97.5"] - t.loc["K", "q2.5"]) / t.loc["K", "median"] < 0.03
+    assert (t.loc["K", "q97.5"] - t.loc["K", "q2.5"]) / t.loc["K", "median"] < 0.04
     assert full.dark_current_compatible
     assert t.loc["dark_current_difference", "q2.5"] < 0 < t.loc["dark_current_difference", "q97.5"]
 
@@ -97,19 +97,22 @@ def test_posteriors_cover_simulated_sensors():
 
 
 def test_k_and_qe_cover_on_nonlinear_sensors():
-    """Sensors whose output is a 2 % cubic compression or expansion at full scale (40 each way): the
-    small-signal K and QE cover the truth (a straight line over 0-70 % of saturation moved K by -1.7 % and
-    covered in 0 of 30).  Measured over 100 sensors: 0.89-0.90 (linear sensors: 0.89, straight line 0.94).
-    80 intervals per quantity, >= 66 hits required (P ~ 5e-3 at a true 0.90)."""
+    """Sensors whose output is compressed or expanded by 2 % at full scale, as a cubic (``p = 2``) or a quintic
+    (``p = 4``, a late roll-off), 20 of each of the four: the small-signal K and QE cover the truth.  A straight
+    line over 0-70 % of saturation moved K by -1.7 % and covered 0 of 30 cubic sensors; a cubic through the
+    origin covered the cubic sensors but only 0.35 of the quintic ones.  Measured with the quartic over 60
+    sensors per shape: 0.93-0.97 (linear sensors 0.95 / 0.93).  80 intervals per quantity, >= 68 hits required
+    (P ~ 2e-3 at a true 0.93)."""
     from bayescal.emva import simulate_steps
 
     hits: dict = {"K": 0, "QE": 0}
-    for seed in range(40):
-        for a in (-0.02, 0.02):
-            t = characterize(simulate_steps(seed=1000 + seed, nonlinearity=a), seed=seed).table.set_index("quantity")
+    for seed in range(20):
+        for a, p in ((-0.02, 2.0), (0.02, 2.0), (-0.02, 4.0), (0.02, 4.0)):
+            steps = simulate_steps(seed=1000 + seed, nonlinearity=a, nonlinearity_power=p)
+            t = characterize(steps, seed=seed).table.set_index("quantity")
             for q, v in (("K", 0.28), ("QE", 45.0)):
                 hits[q] += int(t.loc[q, "q2.5"] <= v <= t.loc[q, "q97.5"])
-    assert min(hits.values()) >= 66, hits
+    assert min(hits.values()) >= 68, hits
 
 
 def test_crop_reduction_agrees_with_full_frame(reference):
