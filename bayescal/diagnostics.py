@@ -7,7 +7,7 @@ quantity.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import arviz as az
 import numpy as np
@@ -34,6 +34,13 @@ class Diagnostics:
     def verdict(self) -> str:
         """``"ok"`` or ``"FAILED: ..."``."""
         return "ok" if self.ok else "FAILED: " + "; ".join(self.problems)
+
+    def with_check(self, name: str, problems: list[str], info: dict) -> Diagnostics:
+        """This verdict after a check: its numbers kept under ``name``, its problems (if any) failing the fit."""
+        extra = dict(self.extra, **{name: info})
+        if not problems:
+            return replace(self, extra=extra)
+        return replace(self, ok=False, problems=self.problems + tuple(problems), extra=extra)
 
     def to_dict(self) -> dict:
         """JSON-ready form."""

@@ -396,20 +396,12 @@ def misfit_of(model: CalibrationModel, rows: dict, excess_dn: np.ndarray | None)
 
 def _check_misfit(model: CalibrationModel, rows: dict, post: dict, diag: Diagnostics) -> Diagnostics:
     """Does the model describe its data to within their noise? Fails the fit, naming where, if not."""
-    problems, info = misfit_of(model, rows, post.get("excess_dn"))
-    extra = dict(diag.extra, misfit=info)
-    if not problems:
-        return replace(diag, extra=extra)
-    return replace(diag, ok=False, problems=diag.problems + tuple(problems), extra=extra)
+    return diag.with_check("misfit", *misfit_of(model, rows, post.get("excess_dn")))
 
 
 def _check_holdout(model: CalibrationModel, program, mode, seed: int, diag: Diagnostics) -> Diagnostics:
     """Leave each setting's rows out in turn: do the other rows predict them? (:mod:`bayescal.holdout`)"""
-    problems, info = holdout_checks(model, program, mode, model.spec.inference.misfit_group_z, seed)
-    extra = dict(diag.extra, holdout=info)
-    if not problems:
-        return replace(diag, extra=extra)
-    return replace(diag, ok=False, problems=diag.problems + tuple(problems), extra=extra)
+    return diag.with_check("holdout", *holdout_checks(model, program, mode, model.spec.inference.misfit_group_z, seed))
 
 
 def _fail(strict: bool, message: str) -> None:
