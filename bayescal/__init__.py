@@ -49,6 +49,12 @@ _LAZY = {
     "lsq_baseline": ".inference.lsq",
     "lstsq": ".inference.lsq",
     "polyfit": ".inference.lsq",
+    "MapSet": ".maps.apply",
+    "apply_maps": ".maps.apply",
+    "build_maps": ".maps.build",
+    "read_maps": ".maps.build",
+    "write_maps": ".maps.build",
+    "load_stacks": ".maps.stacks",
     "Inversion": ".invert",
     "invert": ".invert",
     "radiance_draws": ".invert",
@@ -128,6 +134,9 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from .images import invert_image, read_image, write_radiance_maps
     from .inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit
     from .invert import Inversion, invert, radiance_draws
+    from .maps.apply import MapSet, apply_maps
+    from .maps.build import build_maps, read_maps, write_maps
+    from .maps.stacks import load_stacks
     from .nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves
     from .photon_transfer import Characterization, characterize, standard_method
     from .plan import Plan, default_window, plan_exposure

@@ -124,8 +124,28 @@ def _parser() -> argparse.ArgumentParser:
     _setting_args(iv, required=False)
     _image_args(iv, channel_help="channel of a single-channel image or of --dn values")
     iv.add_argument("--out", help="output directory (image) or CSV (--dn)")
+    iv.add_argument(
+        "--maps",
+        help="per-pixel maps directory (from `bayescal maps`): correct every pixel before inverting",
+    )
     iv.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     iv.set_defaults(func=_cmd_invert)
+    mp = sub.add_parser(
+        "maps", help="per-pixel relative gain, offset, dark current and defect maps from flat and dark frame stacks"
+    )
+    mp.add_argument("stacks", help="directory with conditions.csv and one .npy/.tif/.raw file per stack")
+    mp.add_argument("--out", required=True, help="output directory (holds maps.zarr, or maps.nc with --netcdf)")
+    mp.add_argument("--calibration", help="channel-level fit directory the maps are relative to (provenance)")
+    mp.add_argument("--netcdf", action="store_true", help="write NetCDF (maps.nc) instead of zarr")
+    mp.add_argument(
+        "--fit-pixels", type=int, default=262_144, help="pixels used to fit the population (default 262144)"
+    )
+    mp.add_argument("--rows-per-chunk", type=int, default=None, help="rows per block (default: ~48 MB per block)")
+    mp.add_argument(
+        "--scheduler", help="address of a dask.distributed scheduler (e.g. tcp://host:8786); default: this machine"
+    )
+    mp.add_argument("--quiet", action="store_true", help="no progress bar or stage messages")
+    mp.set_defaults(func=_cmd_maps)
     pl = sub.add_parser("plan", help="choose gain/exposure/TDI so the next frame lands in a DN window")
     pl.add_argument("posterior", help="fit directory or its posterior.nc")
     pl.add_argument("--channel", required=True)
@@ -308,6 +328,8 @@ def _cmd_invert(args) -> int:
         return 0
     cal = Calibration.load(args.posterior)
     setting = _setting(args, cal)
+    if args.maps is not None:
+        return _invert_with_maps(args, cal, setting)
     if (args.image is None) == (args.dn is None):
         raise SpecError("give an IMAGE or --dn values (one of them)")
     if args.dn is not None:
@@ -349,6 +371,83 @@ def _cmd_invert(args) -> int:
         f"{a['n_below_dark']} at/below dark (upper bound only), {a['n_extrapolated']} beyond the calibrated range"
     )
     print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir() if not p.name.startswith("."))))
+    return 0
+
+
+def _invert_with_maps(args, cal, setting) -> int:
+    """``invert --maps``: per-pixel correction, then the channel's inversion, with every uncertainty."""
+    import numpy as np
+
+    from .errors import SpecError
+    from .images import read_image
+    from .io import check_output_dir, staged_directory
+    from .maps.apply import apply_maps
+    from .maps.build import read_maps
+
+    if args.image is None or not args.out:
+        raise SpecError("--maps corrects an IMAGE: give the image and --out DIR")
+    if args.exposure_s is None:
+        raise SpecError("--maps needs the image's --exposure-s (the dark current scales with it)")
+    check_output_dir(args.out)
+    maps = read_maps(args.maps)
+    image = read_image(args.image)
+    if image.ndim != 2:
+        raise SpecError(f"{args.image}: --maps corrects a 2-D single-channel image; got shape {image.shape}")
+    ds = apply_maps(
+        maps, image, args.exposure_s, n_frames=args.n_avg, calibration=cal, channel=args.channel, setting=setting
+    )
+    ds.attrs.update(image=str(args.image), calibration=cal.source, seed=args.seed)
+    with staged_directory(args.out, kind="radiance") as stage:
+        ds.to_netcdf(stage("radiance.nc"), engine="h5netcdf")
+    finite = np.isfinite(ds["median"].to_numpy())
+    print(
+        f"corrected and inverted {image.size} pixels of {args.image} with the maps of {args.maps}: "
+        f"{ds.attrs['n_defective']} defective pixels masked; median relative interval half-width "
+        f"{np.nanmedian((ds['upper'] - ds['lower']).to_numpy()[finite] / 2 / ds['median'].to_numpy()[finite]):.2%}"
+    )
+    print(f"wrote {args.out}/radiance.nc")
+    return 0
+
+
+def _cmd_maps(args) -> int:
+    from .io import check_output_dir
+    from .maps.build import DEFECT_CODES, build_maps, read_maps, write_maps
+    from .maps.stacks import load_manifest
+    from .progress import progress_bar, stage_reporter
+
+    check_output_dir(args.out)
+    stage = stage_reporter(args.quiet)
+    manifest = load_manifest(args.stacks)
+    client = None
+    if args.scheduler:
+        from distributed import Client
+
+        client = Client(args.scheduler)
+        stage(f"using the dask scheduler at {args.scheduler}")
+    try:
+        h, w = manifest.shape
+        stage(
+            f"{len(manifest.stacks)} stacks of {h} x {w} pixels ({manifest.bytes / 1e9:.2f} GB); fitting the population"
+        )
+        ds = build_maps(
+            manifest, fit_pixels=args.fit_pixels, rows_per_chunk=args.rows_per_chunk, calibration=args.calibration
+        )
+        a = ds.attrs
+        spread = ", ".join(f"{n} {a[f'spread_{n}']:.4g} +- {a[f'spread_{n}_se']:.2g}" for n in a["parameters"])
+        stage(f"population: spreads {spread}; defect fraction {a['population_weights'][1]:.2e}; writing the maps")
+        total = len(ds["defect"].data.chunks[0])
+        with progress_bar(total, "maps", quiet=args.quiet) as tick:
+            write_maps(ds, args.out, netcdf=args.netcdf, progress=(lambda done, _: tick(done)) if tick else None)
+    finally:
+        if client is not None:
+            client.close()
+    maps = read_maps(args.out)
+    defect = maps["defect"].to_numpy()
+    counts = {name: int((defect == code).sum()) for code, name in DEFECT_CODES.items() if code}
+    print(
+        f"maps of {defect.size} pixels written to {args.out}/: PRNU {a['spread_relative_gain']:.3%}, "
+        f"DSNU {a['spread_offset_dn']:.3g} DN; defects: " + ", ".join(f"{v} {k}" for k, v in counts.items())
+    )
     return 0
 
 

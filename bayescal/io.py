@@ -152,7 +152,8 @@ def check_output_dir(out_dir: str | os.PathLike) -> Path:
 def staged_directory(out_dir: str | os.PathLike, kind: str = "output") -> Iterator[Callable[[str], Path]]:
     """Stage a directory of outputs, then put it in place of ``out_dir`` as a whole, only on success.
 
-    Yields ``stage(name) -> Path``: a path to write ``name`` to.  If the block
+    Yields ``stage(name) -> Path``: a path to write ``name`` to (``stage.root``
+    is the staged directory itself, for stores such as zarr).  If the block
     raises, ``out_dir`` is left exactly as it was; on success it holds only
     this run's files (an earlier bayescal output there is replaced, never
     mixed with the new one; see :func:`check_output_dir`).
@@ -167,6 +168,7 @@ def staged_directory(out_dir: str | os.PathLike, kind: str = "output") -> Iterat
         path.parent.mkdir(parents=True, exist_ok=True)
         return path
 
+    stage.root = staging
     try:
         yield stage
         from ._version import __version__

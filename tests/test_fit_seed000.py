@@ -45,13 +45,14 @@ def test_laplace_matches_nuts(fits):
 def test_emcee_matches_nuts(fits, seed000):
     sim, nuts, _ = fits
     spec, _ = seed000
-    # a third of the default chain length: ESS ~600, so the Monte Carlo error of a mean is ~0.04 sd
-    emc = bc.fit(sim.table, spec.replace(inference={"emcee_steps": 2000, "emcee_burn": 700}), "emcee", seed=11)
+    # a fifth of the default chain length: ESS ~350 against NUTS's ~1000, so the Monte Carlo error of
+    # a difference of means is ~0.06 sd and 0.25 sd is 4 of them
+    emc = bc.fit(sim.table, spec.replace(inference={"emcee_steps": 1200, "emcee_burn": 400}), "emcee", seed=11)
     assert emc.diagnostics.ok, emc.diagnostics.verdict
     for name in ("A_rel", "gain", "dark_offset", "nonlinearity"):
         a, b = nuts.draws(name), emc.draws(name)
         z = np.abs(a.mean(axis=0) - b.mean(axis=0)) / a.std(axis=0)
-        assert np.all(z <= 0.2), (name, z.max())
+        assert np.all(z <= 0.25), (name, z.max())
 
 
 def test_saved_outputs_match_summary(fits, tmp_path):

@@ -32,12 +32,14 @@ def test_quickstart_runs(monkeypatch):
     assert "true A1  30.180" in text
 
 
+@pytest.mark.slow  # executed in the slow suite; the quickstart runs in the default one
 def test_seed002_notebook_runs(monkeypatch):
     text = _text(_run("seed002_tdi_planning.ipynb", monkeypatch))
     assert "405 DN -> E = 0.11664" in text
     assert "eq. 12 at M = 96, g = 1.26: 899.8 DN" in text
 
 
+@pytest.mark.slow
 def test_ccd_notebook_runs(monkeypatch):
     text = _text(_run("ccd_emva1288.ipynb", monkeypatch))
     assert "compatible: True" in text

@@ -1,5 +1,5 @@
 """Sphere systematic: with the component, 95 % intervals of the true gains cover at close to
-the nominal rate over 50 datasets; without it they under-cover (Laplace backend)."""
+the nominal rate over 30 datasets; without it they under-cover (Laplace backend)."""
 
 import numpy as np
 
@@ -13,21 +13,28 @@ def coverage(spec, design, n):
     the absolute gain is the sphere-relative one, so one fit per dataset serves both cases.
     """
     hits = {"with": [], "without": []}
-    for seed in range(n):
-        sim = bc.simulate(spec, design, seed=1000 + seed)  # truth draws a 3 % sphere scale error
-        fit = bc.fit(sim.table, spec, "laplace", seed=seed)
-        true = np.array([sim.truth.response[c][0] for c in fit.model.layout.channels])
-        for case, gains in (("with", fit.draws("gain")), ("without", fit.draws("A_rel")[..., 1])):
+    sims = [bc.simulate(spec, design, seed=1000 + seed) for seed in range(n)]  # each draws a 3 % scale error
+    batch = bc.fit_many([sim.table for sim in sims], spec, "laplace", seeds=range(n))  # one vmapped program
+    for seed, sim in enumerate(sims):
+        draws = batch.physical(seed)
+        true = np.array([sim.truth.response[c][0] for c in batch.models[seed].layout.channels])
+        for case, gains in (("with", _flat(draws["gain"])), ("without", _flat(draws["A_rel"])[..., 1])):
             lo, hi = np.quantile(gains, [0.025, 0.975], axis=0)
             hits[case].append((lo <= true) & (true <= hi))
     return np.mean(hits["with"]), np.mean(hits["without"])
 
 
+def _flat(draws):
+    """``(chain, draw, ...)`` -> ``(chain * draw, ...)``."""
+    draws = np.asarray(draws)
+    return draws.reshape((-1,) + draws.shape[2:])
+
+
 def test_sphere_component_restores_coverage(seed000):
     spec, design = seed000
     assert spec.sphere.common_rel == 0.03
-    with_sphere, without = coverage(spec, design, 50)
+    with_sphere, without = coverage(spec, design, 30)
     print(f"coverage of true gains: with sphere component {with_sphere:.3f}, without {without:.3f}")
-    # 50 datasets share one scale error per dataset: binomial sd of the rate ~ 0.031
-    assert 0.87 <= with_sphere <= 1.0
+    # 30 datasets share one scale error per dataset: binomial sd of the rate ~ 0.04 -> 3 sd band
+    assert 0.83 <= with_sphere <= 1.0
     assert without <= 0.5

@@ -1,0 +1,286 @@
+"""The hierarchical per-pixel model, conditionally conjugate: no MCMC per pixel.
+
+Pixel ``i`` of a channel has parameters ``theta_i`` (its offset in DN, its dark
+current in DN/s, its relative gain ``1 + PRNU deviation``).  Its mean reading
+in every flat and dark stack is linear in them (EMVA 1288 release 4.0,
+eq. 2 and section 8):
+
+``dark stack at exposure t:  y = o_i + D_i t``
+``flat stack at exposure t:  y = o_i + D_i t + r_i S_c``
+
+where ``S_c`` is the channel's mean signal in condition ``c`` above dark (the
+channel response, nonlinearity included, so ``r_i`` is relative to it).  The
+noise of a stack mean is the channel's temporal variance in that stack over
+its frame count, times the pixel's own noise scale ``phi_i`` (1 for a normal
+pixel, larger for a noisy one).
+
+The pixels' parameters are drawn from a two-component population: *normal*
+pixels ``N(mu_n, V_n)`` (``V_n``: the PRNU, DSNU and dark-current spreads and
+their correlations) and *defects* ``N(mu_d, V_d)``, much wider (hot, dead,
+bright or offset pixels).  Given the population, every pixel's posterior is a
+two-component Normal mixture in closed form; the population itself is
+fitted on the marginal likelihood of a subsample of pixels by expectation
+maximisation with per-pixel measurement error (deconvolution).  All pixels
+share one design, so one generalized eigen-decomposition per component
+diagonalises every pixel's posterior at once.
+
+Noisy pixels (random telegraph noise, which a mean image cannot see) are a
+second mixture on the temporal variances: ``sum_s (n_s - 1) s2_is / v_s`` is
+chi-square with ``sum_s (n_s - 1)`` degrees of freedom for a normal pixel and
+``lambda`` times that for a noisy one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg, special
+
+__all__ = [
+    "LinearDesign",
+    "Population",
+    "NoiseMixture",
+    "fit_population",
+    "fit_noise_mixture",
+    "pixel_posterior",
+    "combination_spread",
+]
+
+#: a defect component at least this many times the normal spread (sd) in every parameter
+DEFECT_WIDTH = 5.0
+
+
+@dataclass(frozen=True)
+class LinearDesign:
+    """One design for every pixel: ``y = X theta``, measurement variances ``var`` (a normal pixel's)."""
+
+    X: np.ndarray  # (M, P)
+    var: np.ndarray  # (M,)
+    names: tuple[str, ...]
+
+    @property
+    def weights(self) -> np.ndarray:
+        return 1.0 / self.var
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """``C0 = (X' W X)^-1``: a normal pixel's least-squares covariance."""
+        return np.linalg.inv(self.X.T @ (self.X * self.weights[:, None]))
+
+    @property
+    def estimator(self) -> np.ndarray:
+        """``A = C0 X' W`` (P, M): ``theta_hat = y @ A.T`` is each pixel's weighted least squares."""
+        return self.covariance @ (self.X.T * self.weights[None, :])
+
+    def least_squares(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-pixel weighted least squares of ``y`` (N, M): estimates (N, P) and chi-square (N,)."""
+        theta = y @ self.estimator.T
+        resid = y - theta @ self.X.T
+        return theta, np.einsum("nm,nm->n", resid * self.weights, resid)
+
+
+@dataclass(frozen=True)
+class Population:
+    """The two-component population of pixel parameters (index 0: normal, 1: defect)."""
+
+    weights: np.ndarray  # (2,)
+    means: np.ndarray  # (2, P)
+    covs: np.ndarray  # (2, P, P)
+    n_pixels: int
+    iterations: int
+    converged: bool
+
+    @property
+    def spread(self) -> np.ndarray:
+        """Standard deviations of the normal pixels' parameters (PRNU, DSNU, dark-current spread)."""
+        return np.sqrt(np.diag(self.covs[0]))
+
+
+@dataclass(frozen=True)
+class NoiseMixture:
+    """Noisy pixels: ``fraction`` of the pixels have temporal variance ``scale`` times the channel's."""
+
+    fraction: float
+    scale: float
+    dof: float
+
+    def probability(self, stat: np.ndarray) -> np.ndarray:
+        """Posterior probability that each pixel is noisy, from its variance statistic."""
+        return _noisy_posterior(stat, self.dof, self.fraction, self.scale)
+
+    def phi(self, stat: np.ndarray) -> np.ndarray:
+        """Each pixel's expected noise scale given its statistic."""
+        q = self.probability(stat)
+        return 1.0 + q * (self.scale - 1.0)
+
+
+def _chi2_logpdf(x: np.ndarray, dof: float) -> np.ndarray:
+    k = dof / 2.0
+    x = np.maximum(x, 1e-300)
+    return (k - 1.0) * np.log(x) - x / 2.0 - k * np.log(2.0) - special.gammaln(k)
+
+
+def _noisy_posterior(stat, dof, fraction, scale) -> np.ndarray:
+    ln = np.log1p(-fraction) + _chi2_logpdf(stat, dof)
+    lq = np.log(fraction) + _chi2_logpdf(stat / scale, dof) - np.log(scale)
+    return special.expit(lq - ln)
+
+
+def fit_noise_mixture(stat: np.ndarray, dof: float, *, iterations: int = 200) -> NoiseMixture:
+    """Maximum-likelihood fraction and variance scale of noisy pixels (EM on the variance statistic)."""
+    fraction, scale = 1e-3, 10.0
+    for _ in range(iterations):
+        q = _noisy_posterior(stat, dof, fraction, scale)
+        new_fraction = float(np.clip(q.mean(), 1e-7, 0.5))
+        new_scale = float(max(np.sum(q * stat) / max(np.sum(q) * dof, 1e-300), 1.5))
+        done = abs(new_fraction - fraction) <= 1e-9 + 1e-6 * fraction and abs(new_scale - scale) <= 1e-6 * scale
+        fraction, scale = new_fraction, new_scale
+        if done:
+            break
+    return NoiseMixture(fraction, scale, float(dof))
+
+
+@dataclass(frozen=True)
+class _Component:
+    """A component diagonalised against the design: ``U' C0 U = I``, ``U' V U = diag(gamma)``."""
+
+    mean: np.ndarray
+    gamma: np.ndarray
+    U: np.ndarray
+    Uinv: np.ndarray
+    logdet_c0: float
+
+    @classmethod
+    def of(cls, mean, cov, c0) -> _Component:
+        gamma, U = linalg.eigh(cov, c0)
+        gamma = np.maximum(gamma, 0.0)
+        return cls(mean, gamma, U, np.linalg.inv(U), float(np.linalg.slogdet(c0)[1]))
+
+    def terms(self, theta_hat: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Marginal log density of each pixel's estimate (N,), posterior means (N, P), and the
+        posterior covariances' eigenvalues in this component's basis (N, P): see :meth:`cov`."""
+        z = (theta_hat - self.mean) @ self.U
+        s = self.gamma[None, :] + phi[:, None]
+        P = z.shape[1]
+        loglik = -0.5 * (P * np.log(2 * np.pi) + self.logdet_c0 + np.sum(np.log(s) + z * z / s, axis=1))
+        mean = self.mean + (z * (self.gamma / s)) @ self.Uinv
+        shrunk = self.gamma[None, :] * phi[:, None] / s
+        return loglik, mean, shrunk
+
+    def cov(self, shrunk: np.ndarray) -> np.ndarray:
+        """Posterior covariances (N, P, P): ``U^-T diag(shrunk) U^-1`` per pixel."""
+        return np.stack([(shrunk * self.Uinv[:, j]) @ self.Uinv for j in range(self.Uinv.shape[0])], axis=1)
+
+    def mean_cov(self, weights: np.ndarray, shrunk: np.ndarray) -> np.ndarray:
+        """``sum_n weights_n cov_n`` without forming the per-pixel covariances."""
+        return (self.Uinv.T * (weights @ shrunk)) @ self.Uinv
+
+
+def _components(pop: Population, c0: np.ndarray) -> list[_Component]:
+    return [_Component.of(pop.means[k], pop.covs[k], c0) for k in range(2)]
+
+
+def _robust_start(theta_hat: np.ndarray, c0: np.ndarray) -> Population:
+    med = np.median(theta_hat, axis=0)
+    mad = 1.4826 * np.median(np.abs(theta_hat - med), axis=0)
+    var = np.maximum(mad**2 - np.diag(c0), 0.05 * mad**2 + 1e-12)
+    normal = np.diag(var)
+    defect = np.diag((DEFECT_WIDTH * 4) ** 2 * (var + np.diag(c0)))
+    return Population(
+        np.array([0.99, 0.01]), np.stack([med, med]), np.stack([normal, defect]), len(theta_hat), 0, False
+    )
+
+
+def fit_population(
+    theta_hat: np.ndarray, phi: np.ndarray, c0: np.ndarray, *, iterations: int = 500, tol: float = 1e-7
+) -> Population:
+    """Maximum marginal likelihood population (EM with per-pixel error ``phi_i C0``).
+
+    The M-step is the deconvolution update (posterior moments of each pixel's
+    parameters per component); the defect component is kept at least
+    ``DEFECT_WIDTH`` normal standard deviations wide in every parameter, so
+    the skewed tail of a normal population is not called defective.
+    """
+    pop = _robust_start(theta_hat, c0)
+    n = len(theta_hat)
+    last = -np.inf
+    converged = False
+    it = 0
+    for it in range(1, iterations + 1):
+        comps = _components(pop, c0)
+        terms = [c.terms(theta_hat, phi) for c in comps]
+        logp = np.stack([np.log(pop.weights[k]) + terms[k][0] for k in range(2)], axis=1)
+        norm = special.logsumexp(logp, axis=1)
+        q = np.exp(logp - norm[:, None])
+        total = float(norm.sum())
+        weights = np.clip(q.mean(axis=0), 1e-7, None)
+        weights = np.array([max(weights[0], 0.5), min(weights[1], 0.5)])
+        weights /= weights.sum()
+        means, covs = [], []
+        for k in range(2):
+            w = q[:, k] / max(q[:, k].sum(), 1e-300)
+            m = w @ terms[k][1]
+            d = terms[k][1] - m
+            cov = (d * w[:, None]).T @ d + comps[k].mean_cov(w, terms[k][2])
+            means.append(m)
+            covs.append(0.5 * (cov + cov.T))
+        floor = DEFECT_WIDTH**2 * np.diag(covs[0])
+        covs[1] = covs[1] + np.diag(np.maximum(floor - np.diag(covs[1]), 0.0))
+        pop = Population(weights, np.stack(means), np.stack(covs), n, it, False)
+        if abs(total - last) <= tol * abs(total):
+            converged = True
+            break
+        last = total
+    return Population(pop.weights, pop.means, pop.covs, n, it, converged)
+
+
+@dataclass
+class PixelPosterior:
+    """Per-pixel posterior summaries (mixture over the two components)."""
+
+    mean: np.ndarray  # (N, P)
+    cov: np.ndarray  # (N, P, P)
+    normal_mean: np.ndarray  # (N, P): given the pixel is normal
+    normal_sd: np.ndarray  # (N, P)
+    defect_probability: np.ndarray  # (N,): the wide component's responsibility
+
+
+def pixel_posterior(theta_hat: np.ndarray, phi: np.ndarray, c0: np.ndarray, pop: Population) -> PixelPosterior:
+    """Every pixel's posterior given the population: a two-component Normal mixture in closed form."""
+    comps = _components(pop, c0)
+    terms = [c.terms(theta_hat, phi) for c in comps]
+    logp = np.stack([np.log(pop.weights[k]) + terms[k][0] for k in range(2)], axis=1)
+    q = np.exp(logp - special.logsumexp(logp, axis=1)[:, None])
+    mean = q[:, :1] * terms[0][1] + q[:, 1:] * terms[1][1]
+    covs = [c.cov(t[2]) for c, t in zip(comps, terms, strict=True)]
+    cov = np.zeros_like(covs[0])
+    for k in range(2):
+        d = terms[k][1] - mean
+        cov += q[:, k, None, None] * (covs[k] + d[:, :, None] * d[:, None, :])
+    sd0 = np.sqrt(np.einsum("njj->nj", covs[0]))
+    return PixelPosterior(mean, cov, terms[0][1], sd0, q[:, 1])
+
+
+def combination_spread(pop: Population, c0: np.ndarray, v: np.ndarray, n_normal: float) -> tuple[float, float]:
+    """Spread (sd) of ``v . theta`` over the normal pixels and its large-sample standard error.
+
+    E.g. ``v = (1, t, 0)``: the dark signal non-uniformity (DSNU) at exposure ``t``.
+    """
+    var = float(v @ pop.covs[0] @ v)
+    c = float(v @ c0 @ v)
+    sd = np.sqrt(max(var, 0.0))
+    return sd, float(np.sqrt(2.0 / max(n_normal, 1.0)) * (var + c) / (2.0 * max(sd, 1e-300)))
+
+
+def spread_uncertainty(pop: Population, c0: np.ndarray, n_normal: float) -> np.ndarray:
+    """Large-sample standard errors of the normal spreads (sd per parameter).
+
+    For a parameter whose estimates scatter as ``N(mu, sigma^2 + c)``, the
+    maximum-likelihood ``sigma^2`` has standard error ``sqrt(2 / n) (sigma^2 + c)``;
+    the delta method gives the error of ``sigma``.
+    """
+    var = np.diag(pop.covs[0])
+    c = np.diag(c0)
+    se_var = np.sqrt(2.0 / max(n_normal, 1.0)) * (var + c)
+    return se_var / (2.0 * np.sqrt(np.maximum(var, 1e-300)))

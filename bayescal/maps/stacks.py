@@ -1,0 +1,237 @@
+"""Flat and dark frame stacks: the manifest, lazy readers, and the per-pixel statistics.
+
+A stack directory holds one file per stack (``.npy`` of shape ``(frames, H, W)``,
+a multi-page ``.tif``, or a headerless ``.raw`` of little-endian uint16 frames
+whose shape the manifest gives) and a ``conditions.csv`` manifest with one row
+per stack:
+
+``file``
+    the stack's file name, relative to the directory;
+``kind``
+    ``flat`` (sphere illumination) or ``dark`` (shutter closed);
+``exposure_s``
+    exposure time in seconds;
+``condition``
+    an identifier pairing each flat stack with the dark stack taken at the same
+    exposure (EMVA 1288 release 4.0, section 6.1: every bright measurement is
+    paired with a dark one); a dark stack may stand alone;
+``gain`` (optional)
+    the gain step (one value per manifest: maps are per gain);
+``height``, ``width`` (``.raw`` only).
+
+Every stack is opened lazily as a dask array chunked by rows (all frames of a
+block of rows in one chunk), so each byte is read once, by whichever worker
+reduces that block.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..errors import TableError
+
+__all__ = ["Manifest", "LazyStack", "load_manifest", "load_stacks", "open_stacks", "block_statistics"]
+
+MANIFEST = "conditions.csv"
+_REQUIRED = ("file", "kind", "exposure_s", "condition")
+
+
+@dataclass(frozen=True)
+class LazyStack:
+    """A picklable, lazily opened ``(frames, H, W)`` stack (dask's array protocol: shape, dtype, ``[...]``).
+
+    Only the path travels to a worker; the file is memory-mapped there, so a
+    distributed reduction ships no pixel data through the scheduler.
+    """
+
+    path: str
+    shape: tuple[int, int, int]
+    dtype: np.dtype
+    format: str
+    offset: int = 0
+
+    @property
+    def ndim(self) -> int:
+        return 3
+
+    def _map(self) -> np.ndarray:
+        if self.format == "tif":
+            import tifffile
+
+            return tifffile.memmap(self.path, mode="r")
+        return np.memmap(self.path, dtype=self.dtype, mode="r", offset=self.offset, shape=self.shape)
+
+    def __getitem__(self, index) -> np.ndarray:
+        data = self._map()
+        if data.ndim == 2:
+            data = data[None]
+        return np.asarray(data[index])
+
+
+def _open_one(path: Path, row: pd.Series, where: str) -> LazyStack:
+    suffix = path.suffix.lower()
+    if not path.is_file():
+        raise TableError(f"{where}: stack file {path} does not exist")
+    try:
+        if suffix == ".npy":
+            mm = np.load(path, mmap_mode="r")
+            if mm.ndim not in (2, 3):
+                raise TableError(f"{where}: {path.name} has shape {mm.shape}; expected (frames, height, width)")
+            if not mm.flags.c_contiguous:
+                raise TableError(f"{where}: {path.name} is Fortran-ordered; save it C-ordered")
+            shape = mm.shape if mm.ndim == 3 else (1, *mm.shape)
+            stack = LazyStack(str(path), tuple(shape), mm.dtype, "npy", int(mm.offset))
+        elif suffix in (".tif", ".tiff"):
+            import tifffile
+
+            try:
+                mm = tifffile.memmap(str(path), mode="r")
+            except ValueError as exc:
+                raise TableError(
+                    f"{where}: {path.name} is not an uncompressed contiguous TIFF ({exc}); "
+                    "save the stack uncompressed or as .npy"
+                ) from None
+            shape = mm.shape if mm.ndim == 3 else (1, *mm.shape)
+            stack = LazyStack(str(path), tuple(shape), mm.dtype, "tif")
+        elif suffix == ".raw":
+            h, w = (int(row.get(k, 0) or 0) for k in ("height", "width"))
+            if h <= 0 or w <= 0:
+                raise TableError(f"{where}: a .raw stack needs positive 'height' and 'width' columns")
+            frame = h * w * 2
+            size = path.stat().st_size
+            if size == 0 or size % frame:
+                raise TableError(
+                    f"{where}: {path.name} has {size} bytes, not a whole number of {h} x {w} uint16 frames"
+                )
+            stack = LazyStack(str(path), (size // frame, h, w), np.dtype("<u2"), "raw")
+        else:
+            raise TableError(f"{where}: {path.name}: expected a .npy, .tif or .raw stack")
+    except (OSError, ValueError) as exc:
+        raise TableError(f"{where}: cannot read stack {path.name} ({exc})") from None
+    if not np.issubdtype(stack.dtype, np.integer) and not np.issubdtype(stack.dtype, np.floating):
+        raise TableError(f"{where}: {path.name} holds {stack.dtype}; expected integer or float pixel values")
+    if stack.shape[0] < 2:
+        raise TableError(
+            f"{where}: {path.name} has {stack.shape[0]} frame; at least 2 are needed to measure temporal noise"
+        )
+    return stack
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """The validated manifest: one row per stack, and each stack opened lazily."""
+
+    directory: Path
+    table: pd.DataFrame  # file, kind, exposure_s, condition, gain
+    stacks: tuple[LazyStack, ...]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.stacks[0].shape[1:]
+
+    @property
+    def bytes(self) -> int:
+        """Bytes of pixel data in all stacks (what a full read costs)."""
+        return int(sum(np.prod(s.shape) * s.dtype.itemsize for s in self.stacks))
+
+
+def load_manifest(directory: str | os.PathLike) -> Manifest:
+    """Read and check ``conditions.csv`` in ``directory`` and open every stack lazily.
+
+    Raises
+    ------
+    TableError
+        Naming the file, row and column: a missing column, an unknown kind, a
+        non-positive exposure, frames of different shapes, a flat condition
+        without its dark stack, more than one gain, an unreadable stack.
+    """
+    directory = Path(directory)
+    path = directory / MANIFEST
+    if not path.is_file():
+        raise TableError(f"{directory}: no {MANIFEST} manifest (one row per stack: {', '.join(_REQUIRED)})")
+    try:
+        table = pd.read_csv(path)
+    except (UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        raise TableError(f"{path}: not a readable CSV table ({exc})") from None
+    missing = [c for c in _REQUIRED if c not in table.columns]
+    if missing:
+        raise TableError(f"{path}: missing column(s) {', '.join(missing)}; expected {', '.join(_REQUIRED)}")
+    if table.empty:
+        raise TableError(f"{path}: no stacks listed")
+    if "gain" not in table.columns:
+        table["gain"] = 1.0
+    table["kind"] = table["kind"].astype(str).str.strip().str.lower()
+    for i, row in table.iterrows():
+        where = f"{path} row {i + 2}"
+        if row["kind"] not in ("flat", "dark"):
+            raise TableError(f"{where}, column kind: '{row['kind']}'; expected flat or dark")
+        for col in ("exposure_s", "gain"):
+            value = pd.to_numeric(pd.Series([row[col]]), errors="coerce").iloc[0]
+            if not np.isfinite(value) or value <= 0:
+                raise TableError(f"{where}, column {col}: {row[col]!r}; expected a positive number")
+    table["exposure_s"] = table["exposure_s"].astype(float)
+    table["gain"] = table["gain"].astype(float)
+    if table["gain"].nunique() > 1:
+        raise TableError(
+            f"{path}, column gain: {table['gain'].nunique()} gains; per-pixel maps are fitted per gain, "
+            "so give one manifest per gain"
+        )
+    dup = table.duplicated(["condition", "kind"], keep=False)
+    if dup.any():
+        i = int(np.flatnonzero(dup)[0])
+        raise TableError(f"{path} row {i + 2}: condition {table['condition'][i]!r} has two {table['kind'][i]} stacks")
+    for cond, rows in table.groupby("condition", sort=False):
+        kinds = set(rows["kind"])
+        if "flat" in kinds and "dark" not in kinds:
+            i = int(rows.index[0])
+            raise TableError(
+                f"{path} row {i + 2}: flat condition {cond!r} has no dark stack; every flat needs the dark "
+                "stack taken at its exposure"
+            )
+        if rows["exposure_s"].nunique() > 1:
+            i = int(rows.index[1])
+            raise TableError(f"{path} row {i + 2}, column exposure_s: condition {cond!r} mixes exposures")
+    if not (table["kind"] == "flat").any():
+        raise TableError(f"{path}: no flat stacks; the relative-gain (PRNU) map needs illuminated frames")
+    stacks = tuple(_open_one(directory / str(row["file"]), row, f"{path} row {i + 2}") for i, row in table.iterrows())
+    shape = stacks[0].shape[1:]
+    for i, s in enumerate(stacks):
+        if s.shape[1:] != shape:
+            raise TableError(
+                f"{path} row {i + 2}: {table['file'][i]} has {s.shape[1]} x {s.shape[2]} frames; "
+                f"the first stack has {shape[0]} x {shape[1]} (all frames must share one shape)"
+            )
+    return Manifest(directory, table.reset_index(drop=True), stacks)
+
+
+#: the public name: a stack directory's validated manifest, every stack opened lazily
+load_stacks = load_manifest
+
+
+def open_stacks(manifest: Manifest, rows_per_chunk: int):
+    """One dask array per stack, ``(frames, H, W)``, chunked ``(frames, rows_per_chunk, W)``."""
+    import dask.array as da
+
+    return [
+        da.from_array(s, chunks=(s.shape[0], rows_per_chunk, s.shape[2]), name=f"stack-{s.path}-{rows_per_chunk}")
+        for s in manifest.stacks
+    ]
+
+
+def block_statistics(block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel mean and unbiased temporal variance over the frames of one ``(frames, rows, W)`` block.
+
+    Computed about the first frame (a shifted two-pass sum), so a 16-bit
+    signal of tens of thousands of DN keeps its sub-DN variance in float64.
+    """
+    x = block.astype(np.float64)
+    x -= x[0]
+    mean = x.mean(axis=0)
+    x -= mean
+    var = np.einsum("f...,f...->...", x, x) / (block.shape[0] - 1)
+    return mean + block[0], var
