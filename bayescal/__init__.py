@@ -55,6 +55,7 @@ _LAZY = {
     "read_maps": ".maps.build",
     "write_maps": ".maps.build",
     "load_stacks": ".maps.stacks",
+    "write_emva_stacks": ".maps.stacks",
     "Inversion": ".invert",
     "invert": ".invert",
     "radiance_draws": ".invert",
@@ -136,7 +137,7 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from .invert import Inversion, invert, radiance_draws
     from .maps.apply import MapSet, apply_maps
     from .maps.build import build_maps, read_maps, write_maps
-    from .maps.stacks import load_stacks
+    from .maps.stacks import load_stacks, write_emva_stacks
     from .nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves
     from .photon_transfer import Characterization, characterize, standard_method
     from .plan import Plan, default_window, plan_exposure

@@ -144,6 +144,7 @@ def _parser() -> argparse.ArgumentParser:
     mp.add_argument(
         "--scheduler", help="address of a dask.distributed scheduler (e.g. tcp://host:8786); default: this machine"
     )
+    mp.add_argument("--report", action="store_true", help="also write OUT/maps_report.html (+ .md)")
     mp.add_argument("--quiet", action="store_true", help="no progress bar or stage messages")
     mp.set_defaults(func=_cmd_maps)
     pl = sub.add_parser("plan", help="choose gain/exposure/TDI so the next frame lands in a DN window")
@@ -442,6 +443,11 @@ def _cmd_maps(args) -> int:
         if client is not None:
             client.close()
     maps = read_maps(args.out)
+    if args.report:
+        from .maps.report import maps_report
+
+        stage("writing the report")
+        maps_report(maps, args.out)
     defect = maps["defect"].to_numpy()
     counts = {name: int((defect == code).sum()) for code, name in DEFECT_CODES.items() if code}
     print(

@@ -17,7 +17,7 @@ import pytest
 import bayescal as bc
 from bayescal.maps.apply import apply_maps
 from bayescal.maps.build import build_maps, fit_map_model, read_maps, write_maps
-from bayescal.maps.stacks import load_manifest
+from bayescal.maps.stacks import load_manifest, write_emva_stacks
 from bayescal.validation.sensor import PixelSensor, write_stacks
 
 from .conftest import DATA, MODELS
@@ -170,40 +170,13 @@ def test_same_maps_on_a_distributed_cluster(sensor, maps):
     np.testing.assert_array_equal(remote["defect"].to_numpy(), maps["defect"].to_numpy())
 
 
-def _emva_stacks(root, steps=30):
-    """The EMVA 1288 refset001 crop as stacks: the first unsaturated pairs and the two 50-frame stacks."""
-    z = np.load(DATA / "emva1288" / "refset001_ccd_12bit" / "crop128.npz")
-    rows = []
-    for i in range(steps):
-        for kind, key in (("flat", "bright_pairs"), ("dark", "dark_pairs")):
-            np.save(root / f"{kind}_{i:02d}.npy", z[key][i])
-            rows.append(
-                {
-                    "file": f"{kind}_{i:02d}.npy",
-                    "kind": kind,
-                    "exposure_s": z["bright_texp"][i] * 1e-9,
-                    "condition": f"pair{i:02d}",
-                }
-            )
-    for kind, key in (("flat", "bright_stack"), ("dark", "dark_stack")):
-        np.save(root / f"{kind}_stack.npy", z[key])
-        rows.append(
-            {
-                "file": f"{kind}_stack.npy",
-                "kind": kind,
-                "exposure_s": float(z["bright_stack_texp"]) * 1e-9,
-                "condition": "stack",
-            }
-        )
-    pd.DataFrame(rows).to_csv(root / "conditions.csv", index=False)
-    return z
-
-
 def test_emva_crop_prnu_beside_the_standard(tmp_path):
     """refset001 crop: the PRNU posterior beside the standard's formula on the same pixels and the
     reference implementation's pixel PRNU of the full frame (0.2652 %)."""
-    z = _emva_stacks(tmp_path)
-    ds = build_maps(tmp_path)
+    npz = DATA / "emva1288" / "refset001_ccd_12bit" / "crop128.npz"
+    z = np.load(npz)
+    ds = build_maps(write_emva_stacks(npz, tmp_path))
+    assert (pd.read_csv(tmp_path / "conditions.csv").kind == "flat").sum() == 28  # 27 pairs below 70 % + the stack
     reference = json.loads((DATA / "emva1288" / "refset001_ccd_12bit" / "emva1288_reference_results.json").read_text())
     prnu, se = ds.attrs["spread_relative_gain"], ds.attrs["spread_relative_gain_se"]
     b, d = z["bright_stack"].astype(float), z["dark_stack"].astype(float)
@@ -270,8 +243,10 @@ def test_cli_maps_then_invert(sensor, tmp_path, capsys):
     from bayescal.cli import main
 
     root, _ = sensor
-    assert main(["maps", str(root), "--out", str(tmp_path / "maps"), "--quiet"]) == 0
+    assert main(["maps", str(root), "--out", str(tmp_path / "maps"), "--quiet", "--report"]) == 0
     assert "defects:" in capsys.readouterr().out
+    page = (tmp_path / "maps" / "maps_report.html").read_text()
+    assert page.count("data:image/png;base64,") == 3 and "spread of relative_gain" in page
     # a directory of someone else's files is refused before any work
     (tmp_path / "theirs").mkdir()
     (tmp_path / "theirs" / "notes.txt").write_text("keep me")

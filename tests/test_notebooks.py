@@ -44,3 +44,10 @@ def test_ccd_notebook_runs(monkeypatch):
     text = _text(_run("ccd_emva1288.ipynb", monkeypatch))
     assert "compatible: True" in text
     assert "K                  ours    0.28006   reference    0.28006" in text
+
+
+@pytest.mark.slow
+def test_pixel_maps_notebook_runs(monkeypatch):
+    text = _text(_run("pixel_maps_emva1288.ipynb", monkeypatch))
+    assert "PRNU standard, crop 0.2641 %" in text
+    assert "PRNU1288_pixel, full frame (reference implementation) 0.2652 %" in text

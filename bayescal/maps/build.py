@@ -75,6 +75,7 @@ class MapModel:
     stacks: pd.DataFrame  # one row per stack: kind, exposure_s, condition, frames, variance, signal
     signal_se: np.ndarray  # standard error of each flat condition's channel signal (all-pixel, relative)
     spread_se: np.ndarray
+    spread_95: list
     shape: tuple[int, int]
     n_normal: float
     info: dict = field(default_factory=dict)
@@ -134,13 +135,39 @@ def _rows_per_chunk(manifest: Manifest, target_bytes: float = 48e6) -> int:
     return int(max(1, min(manifest.shape[0], target_bytes // (8 * frames * width))))
 
 
-def _robust_variance(var: np.ndarray, frames: int) -> float:
+def _robust_variance(var: np.ndarray, frames: int, keep: float = 0.995) -> float:
     """A channel's temporal variance from its pixels' sample variances, unmoved by noisy or hot pixels.
 
-    The median of ``s^2`` is ``sigma^2 * q50(chi2_k) / k`` with ``k = frames - 1``.
+    The mean of the ``s^2`` below their ``keep`` quantile, corrected for the
+    trimming: for ``X ~ chi2_k``, ``E[X | X < c] = k F_{k+2}(c) / F_k(c)``
+    (``k = frames - 1``).  A median would be biased for integer readings, whose
+    two-frame ``s^2`` take only the values ``d^2 / 2``.
     """
     k = frames - 1
-    return float(np.median(var) * k / sstats.chi2.ppf(0.5, k))
+    q = np.quantile(var, keep)
+    c = sstats.chi2.ppf(keep, k)
+    return float(np.mean(var[var <= q]) * keep / sstats.chi2.cdf(c, k + 2))
+
+
+def _stack_variances(variances: np.ndarray, frames: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, NoiseMixture]:
+    """Each stack's temporal variance for a normal pixel, and the noisy-pixel mixture.
+
+    Starts from the trimmed estimate, then alternates: fit the noisy-pixel
+    mixture, and take each stack's variance as the mean ``s^2`` weighted by
+    the probability that a pixel is not noisy.  The mean (not a median or a
+    trimmed mean) is what the pixels' scatter holds when their temporal
+    variances differ (dark shot noise, mild telegraph noise): a trimmed
+    estimate then reads low and inflates the fitted non-uniformity.
+    """
+    var = np.array([_robust_variance(variances[s], frames[s]) for s in range(len(frames))])
+    dof = float(np.sum(frames - 1))
+    for _ in range(rounds):
+        stat = np.sum(((frames - 1) / var)[:, None] * variances, axis=0)
+        noise = fit_noise_mixture(stat, dof)
+        w = 1.0 - noise.probability(stat)
+        var = variances @ w / w.sum()
+    stat = np.sum(((frames - 1) / var)[:, None] * variances, axis=0)
+    return var, fit_noise_mixture(stat, dof)
 
 
 def _sample_rows(height: int, rows: int, fit_pixels: int, width: int) -> list[tuple[int, int]]:
@@ -183,7 +210,7 @@ def fit_map_model(manifest: Manifest, *, fit_pixels: int = 262_144, rows_per_chu
                 f"({frac:.1%} of its pixel readings sit at its maximum); use a lower sphere level or exposure"
             )
     frames = np.array([st.shape[0] for st in manifest.stacks])
-    var = np.array([_robust_variance(variances[s], frames[s]) for s in range(len(frames))])
+    var, noise = _stack_variances(variances, frames)
     dark_of = {c: s for s, (c, k) in enumerate(zip(table["condition"], table["kind"], strict=True)) if k == "dark"}
     signal = np.zeros(len(frames))
     signal_se = np.zeros(len(frames))
@@ -205,12 +232,10 @@ def fit_map_model(manifest: Manifest, *, fit_pixels: int = 262_144, rows_per_chu
         names.append("dark_current_dn_s")
     columns.append(np.where(table["kind"] == "flat", signal, 0.0))
     names.append("relative_gain")
-    design = LinearDesign(np.stack(columns, axis=1), var / frames, tuple(names))
+    design = LinearDesign(np.stack(columns, axis=1), var / frames, tuple(names))  # noise of each stack mean
     if np.linalg.matrix_rank(design.X) < design.X.shape[1]:
         raise SpecError("the stacks do not determine every pixel parameter (need a dark stack and a flat stack)")
-    dof = float(np.sum(frames - 1))
     stat = np.sum(((frames - 1) / var)[:, None] * variances, axis=0)
-    noise = fit_noise_mixture(stat, dof)
     theta_hat, _ = design.least_squares(means.T)
     population = fit_population(theta_hat, noise.phi(stat), design.covariance)
     post = pixel_posterior(theta_hat, noise.phi(stat), design.covariance, population)
@@ -225,7 +250,7 @@ def fit_map_model(manifest: Manifest, *, fit_pixels: int = 262_144, rows_per_chu
         noise,
         stacks,
         signal_se,
-        spread_uncertainty(population, design.covariance, n_normal),
+        *spread_uncertainty(population, design.covariance, n_normal),
         manifest.shape,
         n_normal,
         {"fit_pixels": int(means.shape[1]), "rows_per_chunk": rows},
@@ -364,6 +389,7 @@ def _provenance(manifest: Manifest, model: MapModel, calibration: str | None) ->
     for j, name in enumerate(names):
         attrs[f"spread_{name}"] = float(spread[j])
         attrs[f"spread_{name}_se"] = float(model.spread_se[j])
+        attrs[f"spread_{name}_95"] = list(model.spread_95[j])
     # the dark signal non-uniformity at each dark exposure (EMVA 1288 section 8.2, pixel part): sd of o + D t
     exposures = np.unique(model.stacks.loc[model.stacks["kind"] == "dark", "exposure_s"].to_numpy(float))
     dsnu = [
@@ -375,6 +401,7 @@ def _provenance(manifest: Manifest, model: MapModel, calibration: str | None) ->
     attrs["dsnu_exposure_s"] = exposures.tolist()
     attrs["dsnu_dn"] = [d[0] for d in dsnu]
     attrs["dsnu_dn_se"] = [d[1] for d in dsnu]
+    attrs["dsnu_dn_95"] = [list(d[2]) for d in dsnu]
     return attrs
 
 

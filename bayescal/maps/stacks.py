@@ -35,7 +35,15 @@ import pandas as pd
 
 from ..errors import TableError
 
-__all__ = ["Manifest", "LazyStack", "load_manifest", "load_stacks", "open_stacks", "block_statistics"]
+__all__ = [
+    "Manifest",
+    "LazyStack",
+    "load_manifest",
+    "load_stacks",
+    "open_stacks",
+    "block_statistics",
+    "write_emva_stacks",
+]
 
 MANIFEST = "conditions.csv"
 _REQUIRED = ("file", "kind", "exposure_s", "condition")
@@ -211,6 +219,47 @@ def load_manifest(directory: str | os.PathLike) -> Manifest:
 
 #: the public name: a stack directory's validated manifest, every stack opened lazily
 load_stacks = load_manifest
+
+
+def write_emva_stacks(npz: str | os.PathLike, out_dir: str | os.PathLike, *, max_level: float = 0.7) -> Path:
+    """An EMVA 1288 image set (``crop128.npz`` layout) as a stack directory with its manifest.
+
+    Every bright pair whose mean stays below ``max_level`` of full scale
+    (EMVA 1288 release 4.0 section 8: non-uniformities are measured below
+    saturation) becomes a flat condition with its dark pair; the bright and
+    dark stacks (e.g. 50 frames) become one more condition.
+    """
+    z = np.load(npz)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    full = 2 ** int(z["bits"]) - 1
+    rows = []
+    for i in range(len(z["bright_texp"])):
+        if z["bright_pairs"][i].mean() > max_level * full:
+            continue
+        for kind, key in (("flat", "bright_pairs"), ("dark", "dark_pairs")):
+            np.save(out / f"{kind}_{i:02d}.npy", z[key][i])
+            rows.append(
+                {
+                    "file": f"{kind}_{i:02d}.npy",
+                    "kind": kind,
+                    "exposure_s": float(z["bright_texp"][i]) * 1e-9,
+                    "condition": f"pair{i:02d}",
+                }
+            )
+    if "bright_stack" in z.files:
+        for kind, key in (("flat", "bright_stack"), ("dark", "dark_stack")):
+            np.save(out / f"{kind}_stack.npy", z[key])
+            rows.append(
+                {
+                    "file": f"{kind}_stack.npy",
+                    "kind": kind,
+                    "exposure_s": float(z["bright_stack_texp"]) * 1e-9,
+                    "condition": "stack",
+                }
+            )
+    pd.DataFrame(rows).to_csv(out / MANIFEST, index=False)
+    return out
 
 
 def open_stacks(manifest: Manifest, rows_per_chunk: int):

@@ -95,6 +95,7 @@ def write_stacks(
     exposure_s: float | list[float] = 0.01,
     frames: int = 4,
     seed: int = 0,
+    shot_noise: str = "poisson",
 ) -> SensorTruth:
     """Write a flat stack (and a dark stack) per illumination level; return the truth.
 
@@ -109,6 +110,10 @@ def write_stacks(
         Frames per stack (flat and dark alike).
     seed : int
         Seed of the truth and of every frame.
+    shot_noise : {"poisson", "normal"}
+        ``normal`` draws the electrons from the Normal approximation of the
+        Poisson law in float32 (five times faster; for throughput
+        benchmarks of very large sensors, where the counts are large).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -126,9 +131,16 @@ def write_stacks(
             stack = np.lib.format.open_memmap(
                 out / name, mode="w+", dtype=np.uint16, shape=(frames, *truth.offset_dn.shape)
             )
+            mean_e = sensor.qe * level * truth.relative_gain + dark_e * t
+            if shot_noise == "normal":
+                mean_e, sd_e = mean_e.astype(np.float32), np.sqrt(mean_e).astype(np.float32)
             for f in range(frames):
-                electrons = rng.poisson(sensor.qe * level * truth.relative_gain + dark_e * t)
-                signal = sensor.system_gain * (electrons + read * rng.standard_normal(electrons.shape))
+                if shot_noise == "normal":
+                    electrons = mean_e + sd_e * rng.standard_normal(mean_e.shape, dtype=np.float32)
+                else:
+                    electrons = rng.poisson(mean_e)
+                dtype = np.float32 if shot_noise == "normal" else np.float64
+                signal = sensor.system_gain * (electrons + read * rng.standard_normal(electrons.shape, dtype=dtype))
                 if sensor.nonlinearity:
                     signal = signal * (1.0 - sensor.nonlinearity * np.clip(signal, 0, None) / full)
                 stack[f] = np.clip(np.rint(truth.offset_dn + signal), 0, full)

@@ -1,0 +1,115 @@
+"""Per-pixel maps at sensor scale: a 24 Mpix sensor x 20 conditions x 16 frames, out of core.
+
+Run: ``python benchmarks/pixel_maps_scale.py [--megapixels 24] [--conditions 20] [--frames 16] [--dir PATH]``.
+
+The frames (about 15 GB of uint16 at the defaults) are generated streaming to
+disk, one frame at a time (Normal approximation of the shot noise, for
+speed).  Then, in one run:
+
+1. ``read``: every stack file read once, sequentially, in 64 MB pieces (what
+   merely touching the frames costs);
+2. ``maps``: ``bayescal maps`` in a fresh process (population from a
+   subsample, then every pixel's posterior streamed to a zarr store).
+
+Peak memory is the maps process's maximum RSS.  Both timings see the same
+page cache (the read runs first; the machine has less memory than the
+frames).  Writes ``benchmarks/results/pixel_maps_scale.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bayescal.validation.sensor import PixelSensor, write_stacks
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+def read_all(directory: Path) -> tuple[float, int]:
+    t = time.perf_counter()
+    total = 0
+    buf = bytearray(64 << 20)
+    for path in sorted(directory.glob("*.npy")):
+        with open(path, "rb", buffering=0) as fh:
+            while n := fh.readinto(buf):
+                total += n
+    return time.perf_counter() - t, total
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--megapixels", type=float, default=24.0)
+    parser.add_argument("--conditions", type=int, default=20)
+    parser.add_argument("--frames", type=int, default=16)
+    parser.add_argument("--dir", help="where to write the frames (default: a temporary directory)")
+    parser.add_argument("--keep", action="store_true", help="keep the frames afterwards")
+    args = parser.parse_args()
+    h = int(np.sqrt(args.megapixels * 1e6 * 2 / 3))
+    w = int(args.megapixels * 1e6 / h)
+    work = Path(args.dir or tempfile.mkdtemp(prefix="pixel_maps_scale."))
+    stacks, out = work / "stacks", work / "maps"
+    n_flat = args.conditions // 2  # each flat condition has its dark stack: `conditions` stacks in all
+    photons = list(np.geomspace(2000, 30000, n_flat))
+    exposures = list(np.linspace(0.05, 0.4, n_flat))
+    try:
+        t = time.perf_counter()
+        if not (stacks / "conditions.csv").exists():
+            write_stacks(
+                PixelSensor(height=h, width=w),
+                stacks,
+                photons=photons,
+                exposure_s=exposures,
+                frames=args.frames,
+                seed=0,
+                shot_noise="normal",
+            )
+        t_gen = time.perf_counter() - t
+        t_read, nbytes = read_all(stacks)
+        print(f"read {nbytes / 1e9:.1f} GB in {t_read:.1f} s", flush=True)
+        shutil.rmtree(out, ignore_errors=True)
+        t = time.perf_counter()
+        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        subprocess.run(
+            [sys.executable, "-m", "bayescal.cli", "maps", str(stacks), "--out", str(out), "--quiet"],
+            check=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+        t_maps = time.perf_counter() - t
+        peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+        print(f"maps in {t_maps:.1f} s, peak RSS {peak:.0f} MB (children before: {before / 1024:.0f} MB)")
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        lines = [
+            "# Per-pixel maps at sensor scale",
+            "",
+            f"`python benchmarks/pixel_maps_scale.py --megapixels {args.megapixels:g} --conditions {args.conditions} "
+            f"--frames {args.frames}`: {h} x {w} pixels, {args.conditions} stacks (flat and dark) of "
+            f"{args.frames} uint16 frames "
+            f"({nbytes / 1e9:.1f} GB), 2-core machine with {os.sysconf('SC_PHYS_PAGES') * os.sysconf('SC_PAGE_SIZE') / 2**30:.0f} GiB of memory.",
+            "",
+            "| step | seconds | ratio to reading |",
+            "|---|---|---|",
+            f"| generate the frames (streaming) | {t_gen:.0f} | |",
+            f"| read every frame once | {t_read:.0f} | 1.00 |",
+            f"| `bayescal maps` (population + every pixel's posterior, zarr) | {t_maps:.0f} | {t_maps / t_read:.2f} |",
+            "",
+            f"Peak resident memory of the maps process: {peak:.0f} MB.",
+        ]
+        (RESULTS / "pixel_maps_scale.md").write_text("\n".join(lines) + "\n")
+    finally:
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
