@@ -89,13 +89,14 @@ def main() -> None:
         peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
         print(f"maps in {t_maps:.1f} s, peak RSS {peak:.0f} MB (children before: {before / 1024:.0f} MB)")
         RESULTS.mkdir(parents=True, exist_ok=True)
+        memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 2**30
         lines = [
             "# Per-pixel maps at sensor scale",
             "",
             f"`python benchmarks/pixel_maps_scale.py --megapixels {args.megapixels:g} --conditions {args.conditions} "
             f"--frames {args.frames}`: {h} x {w} pixels, {args.conditions} stacks (flat and dark) of "
             f"{args.frames} uint16 frames "
-            f"({nbytes / 1e9:.1f} GB), 2-core machine with {os.sysconf('SC_PHYS_PAGES') * os.sysconf('SC_PAGE_SIZE') / 2**30:.0f} GiB of memory.",
+            f"({nbytes / 1e9:.1f} GB), 2-core machine with {memory:.0f} GiB of memory.",
             "",
             "| step | seconds | ratio to reading |",
             "|---|---|---|",

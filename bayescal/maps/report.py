@@ -115,7 +115,8 @@ def maps_report(ds, out: str | os.PathLike) -> Path:
     defects = pd.DataFrame({"class": codes, "pixels": full})
     body = [
         "<h1>Per-pixel calibration maps</h1>",
-        f"<p>{ds.sizes['y']} x {ds.sizes['x']} pixels from <code>{html.escape(str(ds.attrs.get('stacks', '')))}</code>; "
+        f"<p>{ds.sizes['y']} x {ds.sizes['x']} pixels from "
+        f"<code>{html.escape(str(ds.attrs.get('stacks', '')))}</code>; "
         f"bayescal {html.escape(str(ds.attrs.get('bayescal_version', '')))}. The relative gain's systematic "
         f"(all-pixel) standard uncertainty is {ds.attrs['u_systematic_relative_gain']:.2e}.</p>",
         "<h2>Population</h2>",
@@ -125,7 +126,8 @@ def maps_report(ds, out: str | os.PathLike) -> Path:
     ]
     for caption, png in figs:
         body.append(
-            f"<figure><img src='data:image/png;base64,{png}' style='max-width:100%'><figcaption>{caption}</figcaption></figure>"
+            f"<figure><img src='data:image/png;base64,{png}' style='max-width:100%'>"
+            f"<figcaption>{caption}</figcaption></figure>"
         )
     page = (
         "<!doctype html><html><head><meta charset='utf-8'><title>bayescal maps</title></head><body>"
