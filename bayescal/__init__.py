@@ -52,8 +52,9 @@ _LAZY = {
     "MapSet": ".maps.apply",
     "apply_maps": ".maps.apply",
     "build_maps": ".maps.build",
-    "read_maps": ".maps.build",
-    "write_maps": ".maps.build",
+    "make_maps": ".maps.store",
+    "read_maps": ".maps.store",
+    "write_maps": ".maps.store",
     "load_stacks": ".maps.stacks",
     "write_emva_stacks": ".maps.stacks",
     "Inversion": ".invert",
@@ -136,8 +137,9 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from .inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit
     from .invert import Inversion, invert, radiance_draws
     from .maps.apply import MapSet, apply_maps
-    from .maps.build import build_maps, read_maps, write_maps
+    from .maps.build import build_maps
     from .maps.stacks import load_stacks, write_emva_stacks
+    from .maps.store import make_maps, read_maps, write_maps
     from .nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves
     from .photon_transfer import Characterization, characterize, standard_method
     from .plan import Plan, default_window, plan_exposure

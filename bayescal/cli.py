@@ -138,6 +138,10 @@ def _parser() -> argparse.ArgumentParser:
     mp.add_argument("--calibration", help="channel-level fit directory the maps are relative to (provenance)")
     mp.add_argument("--netcdf", action="store_true", help="write NetCDF (maps.nc) instead of zarr")
     mp.add_argument(
+        "--cfa", help="Bayer pattern of raw mosaic frames (RGGB, BGGR, GRBG, GBRG): one population per colour"
+    )
+    mp.add_argument("--channel", default="M", help="channel name of a monochrome sensor (default M)")
+    mp.add_argument(
         "--fit-pixels", type=int, default=262_144, help="pixels used to fit the population (default 262144)"
     )
     mp.add_argument("--rows-per-chunk", type=int, default=None, help="rows per block (default: ~48 MB per block)")
@@ -383,7 +387,7 @@ def _invert_with_maps(args, cal, setting) -> int:
     from .images import read_image
     from .io import check_output_dir, staged_directory
     from .maps.apply import apply_maps
-    from .maps.build import read_maps
+    from .maps.store import read_maps
 
     if args.image is None or not args.out:
         raise SpecError("--maps corrects an IMAGE: give the image and --out DIR")
@@ -412,8 +416,11 @@ def _invert_with_maps(args, cal, setting) -> int:
 
 def _cmd_maps(args) -> int:
     from .io import check_output_dir
-    from .maps.build import DEFECT_CODES, build_maps, read_maps, write_maps
+    from .maps.build import build_maps
+    from .maps.metadata import channel_attrs
+    from .maps.model import DEFECT_CODES
     from .maps.stacks import load_manifest
+    from .maps.store import make_maps, read_maps, write_maps
     from .progress import progress_bar, stage_reporter
 
     check_output_dir(args.out)
@@ -430,15 +437,30 @@ def _cmd_maps(args) -> int:
         stage(
             f"{len(manifest.stacks)} stacks of {h} x {w} pixels ({manifest.bytes / 1e9:.2f} GB); fitting the population"
         )
-        ds = build_maps(
-            manifest, fit_pixels=args.fit_pixels, rows_per_chunk=args.rows_per_chunk, calibration=args.calibration
+
+        def population(ds) -> None:
+            for channel in ds.attrs["channels"]:
+                a = channel_attrs(ds, channel)
+                spread = ", ".join(f"{n} {a[f'spread_{n}']:.4g} +- {a[f'spread_{n}_se']:.2g}" for n in a["parameters"])
+                stage(f"channel {channel}: spreads {spread}; defect fraction {a['population_weights'][1]:.2e}")
+            stage("writing the maps")
+
+        kw = dict(
+            fit_pixels=args.fit_pixels,
+            rows_per_chunk=args.rows_per_chunk,
+            calibration=args.calibration,
+            cfa=args.cfa,
+            channel=args.channel,
         )
-        a = ds.attrs
-        spread = ", ".join(f"{n} {a[f'spread_{n}']:.4g} +- {a[f'spread_{n}_se']:.2g}" for n in a["parameters"])
-        stage(f"population: spreads {spread}; defect fraction {a['population_weights'][1]:.2e}; writing the maps")
-        total = len(ds["defect"].data.chunks[0])
-        with progress_bar(total, "maps", quiet=args.quiet) as tick:
-            write_maps(ds, args.out, netcdf=args.netcdf, progress=(lambda done, _: tick(done)) if tick else None)
+        with progress_bar(1, "row blocks", quiet=args.quiet) as tick:
+            advance = tick if tick is None else (lambda done, total: tick(done, total))
+
+            if args.netcdf:
+                ds = build_maps(manifest, **kw)
+                population(ds)
+                write_maps(ds, args.out, netcdf=True, progress=advance)
+            else:
+                make_maps(manifest, args.out, **kw, progress=advance, processes=True, stage=population)
     finally:
         if client is not None:
             client.close()
@@ -450,9 +472,14 @@ def _cmd_maps(args) -> int:
         maps_report(maps, args.out)
     defect = maps["defect"].to_numpy()
     counts = {name: int((defect == code).sum()) for code, name in DEFECT_CODES.items() if code}
+    spreads = "; ".join(
+        f"{c}: PRNU {channel_attrs(maps, c)['spread_relative_gain']:.3%}, "
+        f"offset spread {channel_attrs(maps, c)['spread_offset_dn']:.3g} DN"
+        for c in maps.attrs["channels"]
+    )
     print(
-        f"maps of {defect.size} pixels written to {args.out}/: PRNU {a['spread_relative_gain']:.3%}, "
-        f"DSNU {a['spread_offset_dn']:.3g} DN; defects: " + ", ".join(f"{v} {k}" for k, v in counts.items())
+        f"maps of {defect.size} pixels written to {args.out}/: {spreads}; defects: "
+        + ", ".join(f"{v} {k}" for k, v in counts.items())
     )
     return 0
 

@@ -17,21 +17,12 @@ import numpy as np
 import xarray as xr
 
 from .calibration import Calibration, Setting
+from .cfa import CFA_PATTERNS, cfa_cells, channel_map
 from .errors import SpecError, TableError
 from .invert import BOUND_NAMES, inversion_lut, invert
 from .io import read_image, staged_directory
 
 __all__ = ["read_image", "channel_map", "channel_views", "invert_image", "write_radiance_maps", "CFA_PATTERNS"]
-
-CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
-
-
-def channel_map(shape: tuple[int, int], cfa: str) -> np.ndarray:
-    """Channel letter of every pixel of a Bayer mosaic with pattern ``cfa``."""
-    cells = _cfa_cells(cfa)
-    cell = np.array([[cells[(0, 0)], cells[(0, 1)]], [cells[(1, 0)], cells[(1, 1)]]])
-    h, w = shape
-    return np.tile(cell, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
 
 
 def invert_image(
@@ -138,16 +129,8 @@ def channel_views(
     if channels is not None:
         raise SpecError("channels= is for (H, W, C) stacks; use cfa= or channel= for a 2-D image")
     if cfa is not None:
-        return [((slice(dy, None, 2), slice(dx, None, 2)), name) for (dy, dx), name in _cfa_cells(cfa).items()]
+        return [((slice(dy, None, 2), slice(dx, None, 2)), name) for (dy, dx), name in cfa_cells(cfa).items()]
     return [((Ellipsis,), channel)]
-
-
-def _cfa_cells(cfa: str) -> dict[tuple[int, int], str]:
-    """``{(row, col) offset in the 2 x 2 cell: channel letter}`` of a Bayer pattern."""
-    cfa = cfa.upper()
-    if cfa not in CFA_PATTERNS:
-        raise SpecError(f"unknown CFA pattern '{cfa}'; expected one of {', '.join(CFA_PATTERNS)}")
-    return {(i // 2, i % 2): letter for i, letter in enumerate(cfa)}
 
 
 def write_radiance_maps(ds: xr.Dataset, out_dir: str | os.PathLike) -> Path:

@@ -12,7 +12,7 @@ __all__ = ["progress_bar", "stage_reporter"]
 
 @contextmanager
 def progress_bar(total: int, desc: str, quiet: bool = False) -> Iterator[Callable[[int], None] | None]:
-    """Yield ``tick(done)`` that advances a tqdm bar to ``done``, or None when quiet.
+    """Yield ``tick(done, new_total=None)`` that advances a tqdm bar to ``done``, or None when quiet.
 
     tqdm draws nothing when stderr is not a terminal (``disable=None``).
     """
@@ -23,8 +23,10 @@ def progress_bar(total: int, desc: str, quiet: bool = False) -> Iterator[Callabl
 
     bar = tqdm(total=total, desc=desc, unit="it", leave=False, disable=None, file=sys.stderr)
 
-    def tick(done: int) -> None:
-        bar.update(max(0, min(done, total) - bar.n))
+    def tick(done: int, new_total: int | None = None) -> None:
+        if new_total is not None and new_total != bar.total:  # a total known only once the work is planned
+            bar.total = new_total
+        bar.update(max(0, min(done, bar.total) - bar.n))
 
     try:
         yield tick

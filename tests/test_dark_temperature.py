@@ -63,17 +63,17 @@ def test_temperature_column_required(seed000):
 
 
 def test_doubling_temperature_coverage(seed000):
-    """20 simulated cameras with T_d = 7 degC: the 95 % intervals cover it at the nominal rate."""
+    """12 simulated cameras with T_d = 7 degC: the 95 % intervals cover it at the nominal rate."""
     spec, design = thermal_camera(*seed000)
     hits = []
-    sims = [bc.simulate(spec, design, seed=700 + seed) for seed in range(20)]
+    sims = [bc.simulate(spec, design, seed=700 + seed) for seed in range(12)]
     quick = spec.replace(inference={"holdout_check": False})  # coverage is the point here, not the misfit checks
-    batch = bc.fit_many([sim.table for sim in sims], quick, "laplace", seeds=range(20))  # one vmapped program
-    for seed in range(20):
+    batch = bc.fit_many([sim.table for sim in sims], quick, "laplace", seeds=range(12))  # one vmapped program
+    for seed in range(12):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", bc.FitFailedWarning)
             fit = batch.fit(seed)
         lo, hi = np.quantile(fit.draws("doubling_c"), [0.025, 0.975])
         hits.append(lo <= 7.0 <= hi)
-    print(f"\nT_d 95 % coverage over 20 cameras: {np.mean(hits):.2f}")
-    assert np.mean(hits) >= 0.8  # nominal 0.95; binomial sd 0.05
+    print(f"\nT_d 95 % coverage over 12 cameras: {np.mean(hits):.2f}")
+    assert np.sum(hits) >= 9  # nominal 0.95: P(at most 8 of 12) = 0.002

@@ -16,8 +16,11 @@ import pytest
 
 import bayescal as bc
 from bayescal.maps.apply import apply_maps
-from bayescal.maps.build import build_maps, fit_map_model, read_maps, write_maps
+from bayescal.maps.build import build_maps
+from bayescal.maps.metadata import channel_attrs
+from bayescal.maps.model import fit_map_model
 from bayescal.maps.stacks import load_manifest, write_emva_stacks
+from bayescal.maps.store import make_maps, read_maps, write_maps
 from bayescal.validation.sensor import PixelSensor, write_stacks
 
 from .conftest import DATA, MODELS
@@ -97,6 +100,8 @@ def test_store_round_trip_with_units_and_error_correlation(sensor, maps, tmp_pat
     assert json.loads(back["u_random_offset_dn"].attrs["err_corr"])[0]["form"] == "random"
     assert json.loads(back.attrs["u_systematic_relative_gain_err_corr"])[0]["form"] == "systematic"
     assert back.attrs["bayescal_version"] == bc.__version__
+    direct = make_maps(root, tmp_path / "k", rows_per_chunk=40)  # one task reads, maps and writes each block
+    np.testing.assert_array_equal(direct["relative_gain"].to_numpy(), back["relative_gain"].to_numpy())
     write_maps(ds, tmp_path / "n", netcdf=True)
     nc = read_maps(tmp_path / "n")
     np.testing.assert_allclose(nc["offset_dn"].to_numpy(), maps["offset_dn"].to_numpy(), rtol=1e-6)
@@ -156,6 +161,26 @@ def test_radiance_through_a_channel_calibration_covers(sensor, maps, tmp_path):
     print(f"\nradiance coverage {cover:.4f}; median {np.nanmedian(res['median'].to_numpy()):.4f}")
     assert 0.93 <= cover <= 0.97
     assert res["median"].attrs["units"] == cal.unit
+
+
+def test_bayer_mosaic_gets_one_population_per_colour(tmp_path):
+    """A raw RGGB mosaic whose colours differ by 2.3x in signal: one population per colour, so the
+    relative gains are relative to each colour's own signal and cover the truth."""
+    sensor = PixelSensor(height=128, width=128, bayer="RGGB")
+    truth = write_stacks(
+        sensor, tmp_path, photons=[0.0, 3000.0, 8000.0, 20000.0], exposure_s=EXPOSURES, frames=4, seed=5
+    )
+    ds = build_maps(tmp_path, cfa="RGGB", rows_per_chunk=25).load()  # odd request: blocks start on whole cells
+    assert ds.attrs["channels"] == ["R", "G", "B"] and ds.attrs["cfa"] == "RGGB"
+    normal = truth.defect == 0
+    est, sd = ds["relative_gain"].to_numpy(), ds["u_random_relative_gain"].to_numpy()
+    assert 0.93 <= np.mean((np.abs(est - truth.relative_gain) <= 1.96 * sd)[normal]) <= 0.97
+    for channel in ("R", "G", "B"):
+        assert abs(channel_attrs(ds, channel)["spread_relative_gain"] - 0.01) < 0.002, channel
+    signal = {c: json.loads(channel_attrs(ds, c)["stacks_table"])[-1]["signal_dn"] for c in "RGB"}
+    assert signal["G"] / signal["B"] == pytest.approx(0.50 / 0.22, rel=0.02)
+    res = apply_maps(ds, np.load(tmp_path / "c03_flat.npy")[0], 0.4)  # each plane through its own maps
+    assert np.nanmedian(res["median"].to_numpy()[0::2, 0::2]) == pytest.approx(signal["R"], rel=0.02)
 
 
 def test_same_maps_on_a_distributed_cluster(sensor, maps):

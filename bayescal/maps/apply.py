@@ -36,7 +36,7 @@ from scipy import stats as sstats
 
 from ..errors import TableError
 
-__all__ = ["MapSet", "apply_maps", "noise_model"]
+__all__ = ["MapSet", "SensorMaps", "apply_maps", "noise_model"]
 
 
 def noise_model(stacks: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, float]:
@@ -101,17 +101,22 @@ class MapSet:
         return self._exposures[key]
 
     @classmethod
-    def from_dataset(cls, ds) -> MapSet:
+    def from_dataset(cls, ds, channel: str | None = None) -> MapSet:
+        """One channel's maps (``ds`` already cut to that channel's plane for a mosaic)."""
+        from .metadata import channel_attrs
+
+        attrs = channel_attrs(ds, channel)
+
         def arr(name, fill=0.0):
             if name not in ds:
                 return np.full(ds["relative_gain"].shape, fill, np.float32)
             return np.ascontiguousarray(ds[name].to_numpy(), dtype=np.float32)
 
-        stacks = pd.DataFrame(json.loads(ds.attrs["stacks_table"]))
+        stacks = pd.DataFrame(json.loads(attrs["stacks_table"]))
         a, b, k = noise_model(stacks)
         sd_o, sd_d = arr("u_random_offset_dn"), arr("u_random_dark_current_dn_s")
-        names = list(ds.attrs["parameters"])
-        mean = ds.attrs["population_mean"]
+        names = list(attrs["parameters"])
+        mean = attrs["population_mean"]
         return cls(
             arr("relative_gain", 1.0),
             arr("offset_dn"),
@@ -123,7 +128,7 @@ class MapSet:
             np.ascontiguousarray(ds["defect"].to_numpy(), dtype=np.int8),
             (float(a), float(b)),
             k,
-            float(ds.attrs["u_systematic_relative_gain"]),
+            float(attrs["u_systematic_relative_gain"]),
             float(mean[names.index("offset_dn")]),
             float(mean[names.index("dark_current_dn_s")]) if "dark_current_dn_s" in names else 0.0,
             str(ds.attrs.get("stacks", "")),
@@ -132,6 +137,26 @@ class MapSet:
     @property
     def shape(self) -> tuple[int, int]:
         return self.relative_gain.shape
+
+
+@dataclass(frozen=True)
+class SensorMaps:
+    """A sensor's maps in memory: one :class:`MapSet` per colour plane (one plane for a monochrome sensor)."""
+
+    step: int
+    planes: tuple[tuple[str, int, int, MapSet], ...]  # (channel, row offset, column offset, maps)
+    shape: tuple[int, int]
+
+    @classmethod
+    def from_dataset(cls, ds) -> SensorMaps:
+        from ..cfa import planes
+
+        channels = list(ds.attrs.get("channels", ["M"]))
+        step, layout = planes(ds.attrs.get("cfa") or None, channels[0])
+        cut = [(name, dy, dx, ds.isel(y=slice(dy, None, step), x=slice(dx, None, step))) for name, dy, dx in layout]
+        return cls(
+            step, tuple((n, dy, dx, MapSet.from_dataset(d, n)) for n, dy, dx, d in cut), tuple(ds["defect"].shape)
+        )
 
 
 #: pixels per compiled block (the last block is padded, so one program serves every image size)
@@ -188,17 +213,21 @@ def apply_maps(
 
     Parameters
     ----------
-    maps : MapSet or xarray.Dataset
-        From :func:`bayescal.maps.build_maps` / :func:`bayescal.maps.read_maps`.
+    maps : SensorMaps, MapSet or xarray.Dataset
+        From :func:`bayescal.maps.build_maps` / :func:`bayescal.maps.read_maps`
+        (convert once with :meth:`SensorMaps.from_dataset` to apply many frames).
     image : ndarray
-        ``(H, W)`` readings (DN), the maps' shape; a mean of ``n_frames`` frames.
+        ``(H, W)`` readings (DN), the maps' shape (a raw mosaic for Bayer
+        maps); a mean of ``n_frames`` frames.
     exposure_s : float
         The image's exposure.
     calibration : Calibration, optional
         The channel-level posterior; without it the output is the corrected
-        signal in DN (channel units), with it radiance.
+        signal in DN (channel units), with it radiance.  A mosaic's planes
+        are inverted with the calibration's channel of the same name.
     channel : str, optional
-        The calibration's channel the maps belong to (default: its first).
+        The calibration's channel of monochrome maps (default: the maps'
+        channel if calibrated, else the calibration's first).
     setting : Setting, optional
         The image's setting for the calibration (default: ``exposure_s`` at
         the reference gain).
@@ -214,16 +243,67 @@ def apply_maps(
     """
     import xarray as xr
 
-    m = maps if isinstance(maps, MapSet) else MapSet.from_dataset(maps)
+    if isinstance(maps, MapSet):
+        sensor = SensorMaps(1, (("M", 0, 0, maps),), maps.shape)
+    elif isinstance(maps, SensorMaps):
+        sensor = maps
+    else:
+        sensor = SensorMaps.from_dataset(maps)
     image = np.asarray(image)
-    if image.shape != m.shape:
-        raise TableError(f"image has shape {image.shape}; the maps are {m.shape[0]} x {m.shape[1]}")
+    if image.shape != sensor.shape:
+        raise TableError(f"image has shape {image.shape}; the maps are {sensor.shape[0]} x {sensor.shape[1]}")
     if not (np.isfinite(exposure_s) and exposure_s > 0):
         raise TableError(f"exposure {exposure_s!r}: expected a positive number of seconds")
+    names = ("median", "lower", "upper", "u_random", "u_systematic")[: 5 if parts else 3]
+    out = {k: np.empty(sensor.shape, np.float32) for k in names}
+    defect = np.empty(sensor.shape, np.int8)
+    k = sensor.step
+    for name, dy, dx, m in sensor.planes:
+        which = _calibration_channel(name, channel, calibration, mosaic=k > 1)
+        plane = image if k == 1 else np.ascontiguousarray(image[dy::k, dx::k])
+        res = _apply_plane(m, plane, exposure_s, n_frames, level, calibration, which, setting, grid, names)
+        for key in names:
+            out[key][dy::k, dx::k] = res[key]
+        defect[dy::k, dx::k] = m.defect
+    unit = "DN" if calibration is None else calibration.unit
+    dims = ("y", "x")
+    ds = xr.Dataset(
+        {key: (dims, v, {"units": unit}) for key, v in out.items()}
+        | {"defect": (dims, defect, {"long_name": "defect class from the maps"})}
+    )
+    ds["median"].attrs["long_name"] = (
+        "corrected signal (channel DN above dark)"
+        if calibration is None
+        else (f"posterior median {calibration.stimulus}")
+    )
+    for key, form in (("u_random", "random"), ("u_systematic", "systematic")):
+        if key in ds:
+            ds[key].attrs["err_corr"] = json.dumps([{"dim": ["y", "x"], "form": form, "params": [], "units": []}])
+    ds.attrs.update(
+        exposure_s=exposure_s,
+        n_frames=n_frames,
+        credible_level=level,
+        maps=sensor.planes[0][3].source,
+        n_defective=int(np.count_nonzero(defect)),
+    )
+    return ds
+
+
+def _calibration_channel(name: str, channel: str | None, calibration, mosaic: bool) -> str:
+    """The calibration channel a plane is inverted with: a mosaic plane's own colour; for monochrome
+    maps the one asked for, else the maps' channel when calibrated, else the calibration's first."""
+    if mosaic or calibration is None:
+        return name
+    if channel:
+        return channel
+    return name if name in calibration.channels else calibration.channels[0]
+
+
+def _apply_plane(m: MapSet, image, exposure_s, n_frames, level, calibration, channel, setting, grid, names) -> dict:
+    """One colour plane: the fused kernel over blocks of pixels, on two cores."""
     z = float(sstats.norm.ppf(0.5 + level / 2))
     n = image.size
-    names = ("median", "lower", "upper", "u_random", "u_systematic")
-    out = {k: np.empty(n, np.float32) for k in names[: 5 if parts else 3]}
+    out = {k: np.empty(n, np.float32) for k in names}
     if calibration is None:  # the identity table: corrected signal in DN, systematic part relative only
         top = 4.0 * (float(np.max(np.abs(image))) + 1.0 if image.size else 1.0)
         tables = np.array([[-top, top]] * 3, np.float32)
@@ -233,7 +313,7 @@ def apply_maps(
         tables = np.stack([med_t, lo_t, hi_t])
     dark_var = m.dark_var[0] + m.dark_var[1] * exposure_s
     scalars = np.array([n_frames, m.shot_k, dark_var, m.systematic_rel, x0, dx, z], np.float32)
-    kernel = _kernel(parts)
+    kernel = _kernel(len(names) == 5)
     maps_flat = [a.reshape(-1) for a in (m.inverse_gain, *m.at_exposure(exposure_s), m.var_gain)]
     flat_image = np.ascontiguousarray(image).reshape(-1)
 
@@ -243,8 +323,8 @@ def apply_maps(
         if stop - start < BLOCK:  # pad the last block: one compiled program for every image size
             args = [np.pad(a, (0, BLOCK - (stop - start))) for a in args]
         res = kernel(*args, tables, scalars)
-        for k, v in zip(out, res, strict=True):
-            out[k][start:stop] = np.asarray(v)[: stop - start]
+        for key, v in zip(out, res, strict=True):
+            out[key][start:stop] = np.asarray(v)[: stop - start]
 
     starts = range(0, n, BLOCK)
     workers = min(os.cpu_count() or 1, 2)
@@ -254,28 +334,7 @@ def apply_maps(
     else:
         for start in starts:
             work(start)
-    unit = "DN" if calibration is None else calibration.unit
-    dims = ("y", "x")
-    ds = xr.Dataset(
-        {k: (dims, v.reshape(m.shape), {"units": unit}) for k, v in out.items()}
-        | {"defect": (dims, m.defect, {"long_name": "defect class from the maps"})}
-    )
-    ds["median"].attrs["long_name"] = (
-        "corrected signal (channel DN above dark)"
-        if calibration is None
-        else (f"posterior median {calibration.stimulus}")
-    )
-    for name, form in (("u_random", "random"), ("u_systematic", "systematic")):
-        if name in ds:
-            ds[name].attrs["err_corr"] = json.dumps([{"dim": ["y", "x"], "form": form, "params": [], "units": []}])
-    ds.attrs.update(
-        exposure_s=exposure_s,
-        n_frames=n_frames,
-        credible_level=level,
-        maps=m.source,
-        n_defective=int(np.count_nonzero(m.defect)),
-    )
-    return ds
+    return {key: v.reshape(m.shape) for key, v in out.items()}
 
 
 def _radiance_lut(m: MapSet, cal, channel, setting, exposure_s, grid):
@@ -283,7 +342,7 @@ def _radiance_lut(m: MapSet, cal, channel, setting, exposure_s, grid):
     from ..calibration import Setting
     from ..invert import invert
 
-    channel = channel or cal.channels[0]
+    cal.channel_index(channel)  # a clear error for a channel the calibration does not hold
     setting = setting or Setting(exposure_s, cal.reference.gain, cal.reference.tdi_stages)
     dark = m.mean_offset + m.mean_dark * exposure_s
     top = float(cal.saturation_dn) - dark

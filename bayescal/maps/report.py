@@ -48,6 +48,20 @@ def _histogram(da, bins: np.ndarray) -> np.ndarray:
     return counts
 
 
+def _channel_views(ds) -> list[tuple[str, object, dict]]:
+    """``[(channel, its pixels' maps, its population attributes)]`` (a mosaic: each colour's first plane)."""
+    from ..cfa import planes
+    from .metadata import channel_attrs
+
+    channels = list(ds.attrs.get("channels", ["M"]))
+    step, layout = planes(ds.attrs.get("cfa") or None, channels[0])
+    seen = {}
+    for name, dy, dx in layout:
+        if name not in seen:
+            seen[name] = (name, ds.isel(y=slice(dy, None, step), x=slice(dx, None, step)), channel_attrs(ds, name))
+    return list(seen.values())
+
+
 def maps_report(ds, out: str | os.PathLike) -> Path:
     """Write ``maps_report.html`` for the maps ``ds`` into directory ``out`` (atomically)."""
     out = Path(out)
@@ -66,26 +80,32 @@ def maps_report(ds, out: str | os.PathLike) -> Path:
     fig.tight_layout()
     figs.append(("Maps and their per-pixel uncertainty (block means for display)", png_base64(fig)))
 
-    fig, axes = subplots(1, len(names), figsize=(4.2 * len(names), 3.4), squeeze=False)
-    mean = ds.attrs["population_mean"]
-    params = list(ds.attrs["parameters"])
-    for j, name in enumerate(names):
-        sd = ds.attrs[f"spread_{name}"]
-        mu = mean[params.index(name)]
-        bins = np.linspace(mu - 6 * sd, mu + 6 * sd, 121)
-        counts = _histogram(ds[name], bins)
-        centres = 0.5 * (bins[1:] + bins[:-1])
-        ax = axes[0, j]
-        ax.semilogy(centres, np.maximum(counts, 0.5), drawstyle="steps-mid", label="posterior means (shrunk)")
-        lsq = _histogram(ds[f"lsq_{name}"], bins)
-        ax.semilogy(centres, np.maximum(lsq, 0.5), drawstyle="steps-mid", alpha=0.6, label="least squares (noisier)")
-        normal = (
-            counts.sum() * (bins[1] - bins[0]) * np.exp(-0.5 * ((centres - mu) / sd) ** 2) / (sd * np.sqrt(2 * np.pi))
-        )
-        ax.semilogy(centres, normal, "--", label=f"population N({mu:.4g}, {sd:.3g}$^2$)")
-        ax.set_ylim(0.5, None)
-        ax.set_xlabel(_TITLES[name], fontsize=9)
-        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2))
+    views = _channel_views(ds)
+    fig, axes = subplots(len(views), len(names), figsize=(4.2 * len(names), 3.4 * len(views)), squeeze=False)
+    for i, (channel, sub, attrs) in enumerate(views):
+        params = list(attrs["parameters"])
+        for j, name in enumerate(names):
+            sd = attrs[f"spread_{name}"]
+            mu = attrs["population_mean"][params.index(name)]
+            bins = np.linspace(mu - 6 * sd, mu + 6 * sd, 121)
+            counts = _histogram(sub[name], bins)
+            centres = 0.5 * (bins[1:] + bins[:-1])
+            ax = axes[i, j]
+            ax.semilogy(centres, np.maximum(counts, 0.5), drawstyle="steps-mid", label="posterior means (shrunk)")
+            lsq = _histogram(sub[f"lsq_{name}"], bins)
+            ax.semilogy(
+                centres, np.maximum(lsq, 0.5), drawstyle="steps-mid", alpha=0.6, label="least squares (noisier)"
+            )
+            normal = (
+                counts.sum()
+                * (bins[1] - bins[0])
+                * np.exp(-0.5 * ((centres - mu) / sd) ** 2)
+                / (sd * np.sqrt(2 * np.pi))
+            )
+            ax.semilogy(centres, normal, "--", label=f"population N({mu:.4g}, {sd:.3g}$^2$)")
+            ax.set_ylim(0.5, None)
+            ax.set_xlabel(_TITLES[name] + (f", channel {channel}" if len(views) > 1 else ""), fontsize=9)
+            ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2))
     fig.tight_layout()
     figs.append(("Histograms of every pixel against the fitted population (log scale)", png_base64(fig)))
 
@@ -104,21 +124,21 @@ def maps_report(ds, out: str | os.PathLike) -> Path:
 
     codes = ds["defect"].attrs["flag_meanings"].split()
     full = np.bincount(np.asarray(ds["defect"]).ravel().astype(np.int64), minlength=len(codes))
-    population = pd.DataFrame(
-        {
-            "quantity": [f"spread of {n}" for n in params] + ["defect fraction", "noisy fraction"],
-            "value": [ds.attrs[f"spread_{n}"] for n in params]
-            + [ds.attrs["population_weights"][1], ds.attrs["noisy_fraction"]],
-            "standard error": [ds.attrs[f"spread_{n}_se"] for n in params] + [np.nan, np.nan],
-        }
-    )
+    rows = []
+    for channel, _, attrs in views:
+        for n in attrs["parameters"]:
+            lo, hi = attrs[f"spread_{n}_95"]
+            rows.append((channel, f"spread of {n}", attrs[f"spread_{n}"], lo, hi))
+        rows.append((channel, "defect fraction", attrs["population_weights"][1], np.nan, np.nan))
+        rows.append((channel, "noisy fraction", attrs["noisy_fraction"], np.nan, np.nan))
+    population = pd.DataFrame(rows, columns=["channel", "quantity", "value", "95 % low", "95 % high"])
     defects = pd.DataFrame({"class": codes, "pixels": full})
     body = [
         "<h1>Per-pixel calibration maps</h1>",
         f"<p>{ds.sizes['y']} x {ds.sizes['x']} pixels from "
         f"<code>{html.escape(str(ds.attrs.get('stacks', '')))}</code>; "
         f"bayescal {html.escape(str(ds.attrs.get('bayescal_version', '')))}. The relative gain's systematic "
-        f"(all-pixel) standard uncertainty is {ds.attrs['u_systematic_relative_gain']:.2e}.</p>",
+        f"(all-pixel) standard uncertainty is {views[0][2]['u_systematic_relative_gain']:.2e}.</p>",
         "<h2>Population</h2>",
         pd.DataFrame(population).to_html(index=False, float_format=lambda v: f"{v:.4g}"),
         "<h2>Defects</h2>",

@@ -275,12 +275,22 @@ def open_stacks(manifest: Manifest, rows_per_chunk: int):
 def block_statistics(block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel mean and unbiased temporal variance over the frames of one ``(frames, rows, W)`` block.
 
-    Computed about the first frame (a shifted two-pass sum), so a 16-bit
-    signal of tens of thousands of DN keeps its sub-DN variance in float64.
+    Integer frames are summed exactly in integers about the first frame
+    (``sum d`` and ``sum d^2`` with ``d = x - x_0``), so a 16-bit signal keeps
+    its sub-DN variance and the pass moves 4 bytes per value, not 8; float
+    frames use a shifted two-pass sum in float64.
     """
+    n = block.shape[0]
+    if np.issubdtype(block.dtype, np.integer) and block.dtype.itemsize <= 2:
+        d = block.astype(np.int32)
+        d -= d[0]
+        s1 = d.sum(axis=0, dtype=np.int64)
+        s2 = np.einsum("f...,f...->...", d, d, dtype=np.int64)
+        mean = s1 / n
+        return mean + block[0], (s2 - s1 * mean) / (n - 1)
     x = block.astype(np.float64)
     x -= x[0]
     mean = x.mean(axis=0)
     x -= mean
-    var = np.einsum("f...,f...->...", x, x) / (block.shape[0] - 1)
+    var = np.einsum("f...,f...->...", x, x) / (n - 1)
     return mean + block[0], var

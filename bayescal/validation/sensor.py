@@ -54,6 +54,16 @@ class PixelSensor:
     dead_factor: float = 0.3
     noisy_factor: float = 8.0
     nonlinearity: float = 0.0  # relative compression at full scale: y -> y (1 - a y / full scale)
+    bayer: str = ""  # e.g. "RGGB": a colour mosaic whose 2 x 2 cell has these filters, row by row
+    filter_qe: tuple[tuple[str, float], ...] = (("R", 0.30), ("G", 0.50), ("B", 0.22))  # QE behind each filter
+
+    def qe_map(self) -> np.ndarray | float:
+        """Quantum efficiency of every pixel (a mosaic's filters tiled over the sensor)."""
+        if not self.bayer:
+            return self.qe
+        qe = dict(self.filter_qe)
+        cell = np.array([[qe[self.bayer[0]], qe[self.bayer[1]]], [qe[self.bayer[2]], qe[self.bayer[3]]]])
+        return np.tile(cell, ((self.height + 1) // 2, (self.width + 1) // 2))[: self.height, : self.width]
 
 
 @dataclass
@@ -131,7 +141,7 @@ def write_stacks(
             stack = np.lib.format.open_memmap(
                 out / name, mode="w+", dtype=np.uint16, shape=(frames, *truth.offset_dn.shape)
             )
-            mean_e = sensor.qe * level * truth.relative_gain + dark_e * t
+            mean_e = sensor.qe_map() * level * truth.relative_gain + dark_e * t
             if shot_noise == "normal":
                 mean_e, sd_e = mean_e.astype(np.float32), np.sqrt(mean_e).astype(np.float32)
             for f in range(frames):

@@ -1,0 +1,290 @@
+"""Pass 1 of the maps: each channel's signal, noise and pixel population, and the per-block mapping.
+
+:class:`MapModel` is one channel's fitted model (design, population, noisy-pixel
+mixture); :class:`SensorModel` holds one per colour plane.  :func:`block_maps`
+turns rows of every stack into every pixel's posterior summaries: the unit of
+work of the streaming pass (:mod:`bayescal.maps.build`, :mod:`bayescal.maps.store`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy import stats as sstats
+
+from ..cfa import planes as cfa_planes
+from ..errors import SpecError, TableError
+from .population import (
+    LinearDesign,
+    NoiseMixture,
+    Population,
+    fit_noise_mixture,
+    fit_population,
+    pixel_posterior,
+    spread_uncertainty,
+)
+from .stacks import Manifest, block_statistics
+
+__all__ = ["MapModel", "SensorModel", "DEFECT_CODES", "fit_map_model", "block_maps"]
+
+#: defect codes of the ``defect`` map
+DEFECT_CODES = {0: "none", 1: "hot", 2: "dead", 3: "noisy", 4: "bright", 5: "offset"}
+#: a pixel is mapped as defective when its posterior defect probability exceeds this
+DEFECT_THRESHOLD = 0.5
+#: a stack is refused as saturated when more than this fraction of its pixel readings sit at its maximum
+SATURATED_FRACTION = 0.01
+
+
+@dataclass(frozen=True)
+class MapModel:
+    """Everything pass 2 needs: the design, the population, the noise mixture (small; ships to workers)."""
+
+    design: LinearDesign
+    population: Population
+    noise: NoiseMixture
+    stacks: pd.DataFrame  # one row per stack: kind, exposure_s, condition, frames, variance, signal
+    signal_se: np.ndarray  # standard error of each flat condition's channel signal (all-pixel, relative)
+    spread_se: np.ndarray
+    spread_95: list
+    shape: tuple[int, int]
+    n_normal: float
+    info: dict = field(default_factory=dict)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.design.names
+
+    def outputs(self) -> list[str]:
+        names = []
+        for p in self.names:
+            names += [p, f"u_random_{p}", f"lsq_{p}"]
+        if "dark_current_dn_s" in self.names:
+            names.append("corr_offset_dark")
+        return names + ["defect_probability", "noisy_probability", "noise_scale", "defect"]
+
+    def block(self, means: np.ndarray, variances: np.ndarray) -> np.ndarray:
+        """Per-pixel maps of one block: ``means``, ``variances`` (S, N) -> (outputs, N) float32."""
+        y = means.T
+        theta_hat, _ = self.design.least_squares(y)
+        frames = self.stacks["frames"].to_numpy(float)
+        stat = np.sum(((frames - 1) / self.stacks["variance"].to_numpy())[:, None] * variances, axis=0)
+        q_noisy = self.noise.probability(stat)
+        phi = 1.0 + q_noisy * (self.noise.scale - 1.0)
+        post = pixel_posterior(theta_hat, phi, self.design.covariance, self.population)
+        out = []
+        sd = np.sqrt(np.einsum("njj->nj", post.cov))
+        for j, _ in enumerate(self.names):
+            out += [post.mean[:, j], sd[:, j], theta_hat[:, j]]
+        if "dark_current_dn_s" in self.names:
+            out.append(post.cov[:, 0, 1] / np.maximum(sd[:, 0] * sd[:, 1], 1e-300))
+        p_defect = 1.0 - (1.0 - post.defect_probability) * (1.0 - q_noisy)
+        out += [p_defect, q_noisy, phi, self._classify(post, q_noisy, p_defect)]
+        return np.stack(out).astype(np.float32)
+
+    def _classify(self, post, q_noisy: np.ndarray, p_defect: np.ndarray) -> np.ndarray:
+        """Defect code per pixel: the parameter that departs most from the normal population, or noisy."""
+        pop = self.population
+        dev = (post.mean - pop.means[0]) / np.maximum(pop.spread, 1e-300)
+        code = np.zeros(len(dev))
+        idx = {n: j for j, n in enumerate(self.names)}
+        which = np.argmax(np.abs(dev), axis=1)
+        sign = np.sign(dev[np.arange(len(dev)), which])
+        name = np.asarray(self.names)[which]
+        code = np.where(name == "offset_dn", 5, code)
+        code = np.where(name == "dark_current_dn_s", np.where(sign > 0, 1, 5), code)
+        if "relative_gain" in idx:
+            code = np.where(name == "relative_gain", np.where(sign < 0, 2, 4), code)
+        code = np.where(q_noisy > post.defect_probability, 3, code)
+        return np.where(p_defect > DEFECT_THRESHOLD, code, 0)
+
+
+def _rows_per_chunk(manifest: Manifest, target_bytes: float = 64e6) -> int:
+    """Rows per block so that one block of every stack, as int32, stays near ``target_bytes``."""
+    frames = sum(s.shape[0] for s in manifest.stacks)
+    width = manifest.shape[1]
+    return int(max(1, min(manifest.shape[0], target_bytes // (4 * frames * width))))
+
+
+def _robust_variance(var: np.ndarray, frames: int, keep: float = 0.995) -> float:
+    """A channel's temporal variance from its pixels' sample variances, unmoved by noisy or hot pixels.
+
+    The mean of the ``s^2`` below their ``keep`` quantile, corrected for the
+    trimming: for ``X ~ chi2_k``, ``E[X | X < c] = k F_{k+2}(c) / F_k(c)``
+    (``k = frames - 1``).  A median would be biased for integer readings, whose
+    two-frame ``s^2`` take only the values ``d^2 / 2``.
+    """
+    k = frames - 1
+    q = np.quantile(var, keep)
+    c = sstats.chi2.ppf(keep, k)
+    return float(np.mean(var[var <= q]) * keep / sstats.chi2.cdf(c, k + 2))
+
+
+def _stack_variances(variances: np.ndarray, frames: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, NoiseMixture]:
+    """Each stack's temporal variance for a normal pixel, and the noisy-pixel mixture.
+
+    Starts from the trimmed estimate, then alternates: fit the noisy-pixel
+    mixture, and take each stack's variance as the mean ``s^2`` weighted by
+    the probability that a pixel is not noisy.  The mean (not a median or a
+    trimmed mean) is what the pixels' scatter holds when their temporal
+    variances differ (dark shot noise, mild telegraph noise): a trimmed
+    estimate then reads low and inflates the fitted non-uniformity.
+    """
+    var = np.array([_robust_variance(variances[s], frames[s]) for s in range(len(frames))])
+    dof = float(np.sum(frames - 1))
+    for _ in range(rounds):
+        stat = np.sum(((frames - 1) / var)[:, None] * variances, axis=0)
+        noise = fit_noise_mixture(stat, dof)
+        w = 1.0 - noise.probability(stat)
+        var = variances @ w / w.sum()
+    stat = np.sum(((frames - 1) / var)[:, None] * variances, axis=0)
+    return var, fit_noise_mixture(stat, dof)
+
+
+def _sample_rows(height: int, rows: int, fit_pixels: int, width: int) -> list[tuple[int, int]]:
+    """Evenly spaced row blocks holding about ``fit_pixels`` pixels (every block when the sensor is small)."""
+    blocks = [(r, min(r + rows, height)) for r in range(0, height, rows)]
+    want = max(1, int(np.ceil(fit_pixels / (rows * width))))
+    if want >= len(blocks):
+        return blocks
+    pick = np.unique(np.linspace(0, len(blocks) - 1, want).round().astype(int))
+    return [blocks[i] for i in pick]
+
+
+def _statistics(manifest: Manifest, r0: int, r1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Means and variances (S, rows, W) of rows ``r0:r1`` of every stack, and each stack's saturated fraction."""
+    means, variances, saturated = [], [], []
+    for stack in manifest.stacks:
+        block = stack[:, r0:r1]
+        m, v = block_statistics(block)
+        means.append(m)
+        variances.append(v)
+        top = block.max()
+        saturated.append(float(np.mean(block == top)) if top > 0 else 0.0)
+    return np.stack(means), np.stack(variances), np.asarray(saturated)
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """One :class:`MapModel` per colour channel, and the strided plane each channel's pixels occupy."""
+
+    models: dict[str, MapModel]
+    step: int  # 1: monochrome; 2: a Bayer mosaic
+    planes: tuple[tuple[str, int, int], ...]  # (channel, row offset, column offset)
+    cfa: str | None
+
+    def outputs(self) -> list[str]:
+        return next(iter(self.models.values())).outputs()
+
+
+def _plane_values(parts, index: int, step: int, dy: int, dx: int) -> np.ndarray:
+    return np.concatenate([p[index][:, dy::step, dx::step].reshape(p[index].shape[0], -1) for p in parts], axis=1)
+
+
+def fit_map_model(
+    manifest: Manifest,
+    *,
+    fit_pixels: int = 262_144,
+    rows_per_chunk: int | None = None,
+    cfa: str | None = None,
+    channel: str = "M",
+) -> SensorModel:
+    """Pass 1: per channel, the signal per condition, stack variances and the pixel population.
+
+    ``cfa`` names the Bayer pattern of a raw mosaic: every colour channel then
+    gets its own signal, noise and population (both green planes share one).
+    """
+    step, planes = cfa_planes(cfa, channel)
+    rows = _even(rows_per_chunk or _rows_per_chunk(manifest), step)
+    parts = [
+        _statistics(manifest, r0, r1) for r0, r1 in _sample_rows(manifest.shape[0], rows, fit_pixels, manifest.shape[1])
+    ]
+    saturated = np.max(np.stack([p[2] for p in parts]), axis=0)
+    table = manifest.table
+    for s, frac in enumerate(saturated):
+        if frac > SATURATED_FRACTION and table["kind"][s] == "flat":
+            raise TableError(
+                f"{manifest.directory / 'conditions.csv'} row {s + 2}: stack {table['file'][s]} is saturated "
+                f"({frac:.1%} of its pixel readings sit at its maximum); use a lower sphere level or exposure"
+            )
+    models = {}
+    for name in dict.fromkeys(n for n, _, _ in planes):
+        mine = [(dy, dx) for n, dy, dx in planes if n == name]
+        means = np.concatenate([_plane_values(parts, 0, step, dy, dx) for dy, dx in mine], axis=1)
+        variances = np.concatenate([_plane_values(parts, 1, step, dy, dx) for dy, dx in mine], axis=1)
+        models[name] = _fit_channel(manifest, means, variances, rows)
+    return SensorModel(models, step, tuple(planes), cfa)
+
+
+def _even(rows: int, step: int) -> int:
+    """Row blocks start on a whole Bayer cell."""
+    return max(step, rows - rows % step)
+
+
+def _fit_channel(manifest: Manifest, means: np.ndarray, variances: np.ndarray, rows: int) -> MapModel:
+    """One channel's model from its pixels' statistics (S, N)."""
+    table = manifest.table
+    frames = np.array([st.shape[0] for st in manifest.stacks])
+    var, noise = _stack_variances(variances, frames)
+    dark_of = {c: s for s, (c, k) in enumerate(zip(table["condition"], table["kind"], strict=True)) if k == "dark"}
+    signal = np.zeros(len(frames))
+    signal_se = np.zeros(len(frames))
+    for s, (c, k) in enumerate(zip(table["condition"], table["kind"], strict=True)):
+        if k == "flat":
+            diff = means[s] - means[dark_of[c]]
+            signal[s] = sstats.trim_mean(diff, 0.05)
+            signal_se[s] = float(np.std(diff) / np.sqrt(diff.size) / max(abs(signal[s]), 1e-300))
+            if signal[s] <= 0:
+                raise TableError(
+                    f"{manifest.directory / 'conditions.csv'} row {s + 2}: flat stack {table['file'][s]} reads no "
+                    f"more than its dark stack (mean signal {signal[s]:.3g} DN); check the kinds"
+                )
+    exposures = table["exposure_s"].to_numpy()
+    columns = [np.ones(len(frames))]
+    names = ["offset_dn"]
+    if np.unique(exposures).size > 1:
+        columns.append(exposures)
+        names.append("dark_current_dn_s")
+    columns.append(np.where(table["kind"] == "flat", signal, 0.0))
+    names.append("relative_gain")
+    design = LinearDesign(np.stack(columns, axis=1), var / frames, tuple(names))  # noise of each stack mean
+    if np.linalg.matrix_rank(design.X) < design.X.shape[1]:
+        raise SpecError("the stacks do not determine every pixel parameter (need a dark stack and a flat stack)")
+    stat = np.sum(((frames - 1) / var)[:, None] * variances, axis=0)
+    theta_hat, _ = design.least_squares(means.T)
+    population = fit_population(theta_hat, noise.phi(stat), design.covariance)
+    post = pixel_posterior(theta_hat, noise.phi(stat), design.covariance, population)
+    n_normal = float(np.sum(1.0 - post.defect_probability))
+    stacks = table[["file", "kind", "exposure_s", "condition", "gain"]].copy()
+    stacks["frames"] = frames
+    stacks["variance"] = var
+    stacks["signal_dn"] = signal
+    return MapModel(
+        design,
+        population,
+        noise,
+        stacks,
+        signal_se,
+        *spread_uncertainty(population, design.covariance, n_normal),
+        manifest.shape,
+        n_normal,
+        {"fit_pixels": int(means.shape[1]), "rows_per_chunk": rows},
+    )
+
+
+def block_maps(model: SensorModel, stacks, r0: int, r1: int) -> np.ndarray:
+    """Rows ``r0:r1``: read every stack's frames, reduce, and map each pixel -> (outputs, rows, W)."""
+    stats = [block_statistics(s[:, r0:r1]) for s in stacks]
+    means = np.stack([m for m, _ in stats])
+    variances = np.stack([v for _, v in stats])
+    rows, width = means.shape[1:]
+    out = np.empty((len(model.outputs()), rows, width), np.float32)
+    k = model.step
+    for name, dy, dx in model.planes:
+        sub = means[:, dy::k, dx::k]
+        maps = model.models[name].block(
+            sub.reshape(len(stacks), -1), variances[:, dy::k, dx::k].reshape(len(stacks), -1)
+        )
+        out[:, dy::k, dx::k] = maps.reshape(-1, *sub.shape[1:])
+    return out
