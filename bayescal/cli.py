@@ -399,7 +399,14 @@ def _invert_with_maps(args, cal, setting) -> int:
     if image.ndim != 2:
         raise SpecError(f"{args.image}: --maps corrects a 2-D single-channel image; got shape {image.shape}")
     ds = apply_maps(
-        maps, image, args.exposure_s, n_frames=args.n_avg, calibration=cal, channel=args.channel, setting=setting
+        maps,
+        image,
+        args.exposure_s,
+        n_frames=args.n_avg,
+        calibration=cal,
+        channel=args.channel,
+        setting=setting,
+        temperature_c=args.temperature_c,
     )
     ds.attrs.update(image=str(args.image), calibration=cal.source, seed=args.seed)
     with staged_directory(args.out, kind="radiance") as stage:

@@ -183,6 +183,32 @@ def test_bayer_mosaic_gets_one_population_per_colour(tmp_path):
     assert np.nanmedian(res["median"].to_numpy()[0::2, 0::2]) == pytest.approx(signal["R"], rel=0.02)
 
 
+def test_dark_current_temperature_is_fitted_and_applied(tmp_path):
+    """Darks at 10, 20 and 30 degC from a sensor whose dark current doubles every 7 degC: the shared
+    doubling temperature is recovered, per-pixel intervals cover, and a frame taken at 30 degC is
+    corrected with its own dark current (ignoring the temperature, half the intervals miss)."""
+    sensor = PixelSensor(height=128, width=128, dark_current_e_s=200.0, doubling_c=7.0)
+    photons, exposures, temps = [0, 0, 0, 3000, 10000, 30000], [0.4, 0.4, 0.4, 0.1, 0.2, 0.4], [10, 20, 30, 20, 20, 20]
+    truth = write_stacks(sensor, tmp_path / "s", photons=photons, exposure_s=exposures, temperatures_c=temps, seed=2)
+    ds = build_maps(tmp_path / "s").load()
+    assert ds.attrs["temperature_ref_c"] == 20.0
+    assert abs(ds.attrs["doubling_c"] - 7.0) < max(4 * ds.attrs["doubling_c_se"], 0.05)
+    normal = truth.defect == 0
+    for name in ("offset_dn", "dark_current_dn_s", "relative_gain"):
+        est, sd = ds[name].to_numpy(), ds[f"u_random_{name}"].to_numpy()
+        assert 0.93 <= np.mean((np.abs(est - getattr(truth, name)) <= 1.96 * sd)[normal]) <= 0.97, name
+    write_stacks(sensor, tmp_path / "hot", photons=[5000], exposure_s=0.3, temperatures_c=[30], frames=2, seed=2)
+    frame = np.load(tmp_path / "hot" / "c00_flat.npy")[0]
+    true_signal = sensor.system_gain * sensor.qe * 5000 * truth.relative_gain[normal].mean()
+    ok = normal & (ds["defect"].to_numpy() == 0)
+
+    def cover(res):
+        return np.mean(((res["lower"] <= true_signal) & (true_signal <= res["upper"])).to_numpy()[ok])
+
+    assert 0.93 <= cover(apply_maps(ds, frame, 0.3, temperature_c=30.0)) <= 0.97
+    assert cover(apply_maps(ds, frame, 0.3)) < 0.7
+
+
 def test_same_maps_on_a_distributed_cluster(sensor, maps):
     distributed = pytest.importorskip("distributed")
     root, _ = sensor
@@ -246,6 +272,7 @@ def test_bad_stacks_are_refused_by_name(sensor, tmp_path):
     flat = int(np.flatnonzero(table.kind == "flat")[0])
     expect("saturated", table.assign(file=table.file.where(table.index != flat, "sat.npy")))
     expect("missing column", table.drop(columns="kind"))
+    expect("column temperature_c", table.assign(temperature_c=["warm"] + [20.0] * (len(table) - 1)))
     (work / "conditions.csv").unlink()
     with pytest.raises(bc.TableError, match="no conditions.csv"):
         load_manifest(work)

@@ -75,6 +75,8 @@ class MapSet:
     mean_offset: float
     mean_dark: float
     source: str
+    temperature_ref_c: float = float("nan")  # the dark maps' temperature (NaN: no temperature term)
+    doubling_c: float = float("nan")
 
     @functools.cached_property
     def inverse_gain(self) -> np.ndarray:
@@ -87,9 +89,17 @@ class MapSet:
     def _exposures(self) -> dict:
         return {}
 
-    def at_exposure(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Dark level ``o + D t`` and map variance ``var(o) + t^2 var(D) + 2 t cov`` (the latest exposure cached)."""
-        key = float(t)
+    def dark_factor(self, temperature_c: float | None) -> float:
+        """Dark current at ``temperature_c`` relative to the maps' (1 without a temperature term or temperature)."""
+        if temperature_c is None or not np.isfinite(self.doubling_c):
+            return 1.0
+        return float(np.exp2((temperature_c - self.temperature_ref_c) / self.doubling_c))
+
+    def at_exposure(self, t: float, temperature_c: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Dark level ``o + D t'`` and map variance ``var(o) + t'^2 var(D) + 2 t' cov`` with ``t' = t k(T)``
+        (the dark current's temperature factor folded into the exposure; the latest one cached)."""
+        key = (float(t), temperature_c)
+        t = float(t) * self.dark_factor(temperature_c)
         if key not in self._exposures:
             if self._exposures:  # one exposure kept: two float32 maps
                 self._exposures.pop(next(iter(self._exposures)))
@@ -132,6 +142,8 @@ class MapSet:
             float(mean[names.index("offset_dn")]),
             float(mean[names.index("dark_current_dn_s")]) if "dark_current_dn_s" in names else 0.0,
             str(ds.attrs.get("stacks", "")),
+            float(attrs.get("temperature_ref_c", np.nan)),
+            float(attrs.get("doubling_c", np.nan)),
         )
 
     @property
@@ -208,6 +220,7 @@ def apply_maps(
     setting=None,
     grid: int = 2048,
     parts: bool = False,
+    temperature_c: float | None = None,
 ):
     """Correct (and, with a calibration, invert) ``image`` pixel by pixel.
 
@@ -234,6 +247,10 @@ def apply_maps(
     parts : bool
         Also return the random (per-pixel) and systematic (all-pixel)
         standard uncertainties ``u_random``, ``u_systematic``.
+    temperature_c : float, optional
+        Sensor temperature of the image: maps fitted over a temperature range
+        scale each pixel's dark current by ``2^((T - T_ref) / T_d)``; default
+        the maps' reference temperature.
 
     Returns
     -------
@@ -261,7 +278,9 @@ def apply_maps(
     for name, dy, dx, m in sensor.planes:
         which = _calibration_channel(name, channel, calibration, mosaic=k > 1)
         plane = image if k == 1 else np.ascontiguousarray(image[dy::k, dx::k])
-        res = _apply_plane(m, plane, exposure_s, n_frames, level, calibration, which, setting, grid, names)
+        res = _apply_plane(
+            m, plane, exposure_s, n_frames, level, calibration, which, setting, grid, names, temperature_c
+        )
         for key in names:
             out[key][dy::k, dx::k] = res[key]
         defect[dy::k, dx::k] = m.defect
@@ -299,7 +318,9 @@ def _calibration_channel(name: str, channel: str | None, calibration, mosaic: bo
     return name if name in calibration.channels else calibration.channels[0]
 
 
-def _apply_plane(m: MapSet, image, exposure_s, n_frames, level, calibration, channel, setting, grid, names) -> dict:
+def _apply_plane(
+    m: MapSet, image, exposure_s, n_frames, level, calibration, channel, setting, grid, names, temperature_c=None
+) -> dict:
     """One colour plane: the fused kernel over blocks of pixels, on two cores."""
     z = float(sstats.norm.ppf(0.5 + level / 2))
     n = image.size
@@ -314,7 +335,7 @@ def _apply_plane(m: MapSet, image, exposure_s, n_frames, level, calibration, cha
     dark_var = m.dark_var[0] + m.dark_var[1] * exposure_s
     scalars = np.array([n_frames, m.shot_k, dark_var, m.systematic_rel, x0, dx, z], np.float32)
     kernel = _kernel(len(names) == 5)
-    maps_flat = [a.reshape(-1) for a in (m.inverse_gain, *m.at_exposure(exposure_s), m.var_gain)]
+    maps_flat = [a.reshape(-1) for a in (m.inverse_gain, *m.at_exposure(exposure_s, temperature_c), m.var_gain)]
     flat_image = np.ascontiguousarray(image).reshape(-1)
 
     def work(start: int) -> None:

@@ -125,6 +125,9 @@ def _channel_provenance(model: MapModel) -> dict:
         "design_var": model.design.var.tolist(),
         "u_systematic_relative_gain": systematic,
     }
+    thermal = model.info.get("thermal")
+    if thermal is not None:  # the dark current is at temperature_ref_c; it doubles every doubling_c degrees
+        attrs.update({k: thermal[k] for k in ("temperature_ref_c", "doubling_c", "doubling_c_se")})
     for j, name in enumerate(names):
         attrs[f"spread_{name}"] = float(spread[j])
         attrs[f"spread_{name}_se"] = float(model.spread_se[j])

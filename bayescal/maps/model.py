@@ -241,14 +241,9 @@ def _fit_channel(manifest: Manifest, means: np.ndarray, variances: np.ndarray, r
                     f"more than its dark stack (mean signal {signal[s]:.3g} DN); check the kinds"
                 )
     exposures = table["exposure_s"].to_numpy()
-    columns = [np.ones(len(frames))]
-    names = ["offset_dn"]
-    if np.unique(exposures).size > 1:
-        columns.append(exposures)
-        names.append("dark_current_dn_s")
-    columns.append(np.where(table["kind"] == "flat", signal, 0.0))
-    names.append("relative_gain")
-    design = LinearDesign(np.stack(columns, axis=1), var / frames, tuple(names))  # noise of each stack mean
+    flat_signal = np.where(table["kind"] == "flat", signal, 0.0)
+    thermal = _thermal(table, exposures, flat_signal, var / frames, means)
+    design = _design(exposures, flat_signal, var / frames, thermal)
     if np.linalg.matrix_rank(design.X) < design.X.shape[1]:
         raise SpecError("the stacks do not determine every pixel parameter (need a dark stack and a flat stack)")
     stat = np.sum(((frames - 1) / var)[:, None] * variances, axis=0)
@@ -256,7 +251,7 @@ def _fit_channel(manifest: Manifest, means: np.ndarray, variances: np.ndarray, r
     population = fit_population(theta_hat, noise.phi(stat), design.covariance)
     post = pixel_posterior(theta_hat, noise.phi(stat), design.covariance, population)
     n_normal = float(np.sum(1.0 - post.defect_probability))
-    stacks = table[["file", "kind", "exposure_s", "condition", "gain"]].copy()
+    stacks = table[["file", "kind", "exposure_s", "condition", "gain", "temperature_c"]].copy()
     stacks["frames"] = frames
     stacks["variance"] = var
     stacks["signal_dn"] = signal
@@ -269,8 +264,72 @@ def _fit_channel(manifest: Manifest, means: np.ndarray, variances: np.ndarray, r
         *spread_uncertainty(population, design.covariance, n_normal),
         manifest.shape,
         n_normal,
-        {"fit_pixels": int(means.shape[1]), "rows_per_chunk": rows},
+        {"fit_pixels": int(means.shape[1]), "rows_per_chunk": rows, "thermal": thermal},
     )
+
+
+def _design(exposures, flat_signal, var, thermal: dict | None) -> LinearDesign:
+    """``dark: o + D t k(T)``, ``flat: ... + r S_c`` with ``k(T) = 2^((T - T_ref) / T_d)`` (1 without
+    a temperature term): the dark current doubles every ``T_d`` degrees (EMVA 1288 release 4.0, eq. 7)."""
+    columns = [np.ones(len(exposures))]
+    names = ["offset_dn"]
+    if np.unique(exposures).size > 1 or thermal is not None:
+        factor = 1.0 if thermal is None else thermal["factor"]
+        columns.append(exposures * factor)
+        names.append("dark_current_dn_s")
+    columns.append(flat_signal)
+    names.append("relative_gain")
+    return LinearDesign(np.stack(columns, axis=1), var, tuple(names))
+
+
+def doubling_factor(temperature_c, temperature_ref_c: float, doubling_c: float):
+    """``2^((T - T_ref) / T_d)``: the dark current at ``T`` relative to ``T_ref``."""
+    return np.exp2((np.asarray(temperature_c, float) - temperature_ref_c) / doubling_c)
+
+
+def _thermal(table, exposures, flat_signal, var, means) -> dict | None:
+    """The dark-current doubling temperature shared by the pixels, by profile least squares.
+
+    Given ``T_d`` every pixel's model is linear; the summed weighted residual
+    ``chi2(T_d)`` over the subsample is minimised over ``log T_d`` and its
+    curvature (scaled by the residual variance per degree of freedom) gives
+    the standard error.  None when the stacks span no temperature range.
+    """
+    from scipy import optimize
+
+    temps = table["temperature_c"].to_numpy(float)
+    if np.all(np.isnan(temps)) or np.nanmax(temps) - np.nanmin(temps) < 1.0:
+        return None
+    ref = float(np.median(temps))
+    keep = np.ones(means.shape[1], bool)
+
+    def fit(log_td: float):
+        th = {"factor": doubling_factor(temps, ref, np.exp(log_td))}
+        return _design(exposures, flat_signal, var, th).least_squares(means[:, keep].T)
+
+    def chi2(log_td: float) -> float:
+        return float(fit(log_td)[1].sum())
+
+    res = optimize.minimize_scalar(chi2, bounds=(np.log(1.0), np.log(200.0)), method="bounded")
+    # refit on the pixels the model describes: hot (often clipped), noisy and other defects would pull T_d
+    theta, per_pixel = fit(res.x)
+    dark = theta[:, 1]
+    mad = 1.4826 * np.median(np.abs(dark - np.median(dark)))
+    dof_pixel = means.shape[0] - 3
+    keep[keep] = (per_pixel < sstats.chi2.ppf(0.999, dof_pixel)) & (np.abs(dark - np.median(dark)) < 6 * mad)
+    res = optimize.minimize_scalar(chi2, bounds=(np.log(1.0), np.log(200.0)), method="bounded")
+    h = 1e-3
+    curv = (chi2(res.x + h) - 2 * res.fun + chi2(res.x - h)) / h**2
+    dof = keep.sum() * dof_pixel
+    scale = res.fun / max(dof, 1)
+    se_log = float(np.sqrt(2 * scale / curv)) if curv > 0 else float("inf")
+    td = float(np.exp(res.x))
+    return {
+        "factor": doubling_factor(temps, ref, td),
+        "temperature_ref_c": ref,
+        "doubling_c": td,
+        "doubling_c_se": td * se_log,
+    }
 
 
 def block_maps(model: SensorModel, stacks, r0: int, r1: int) -> np.ndarray:

@@ -17,6 +17,9 @@ per stack:
     paired with a dark one); a dark stack may stand alone;
 ``gain`` (optional)
     the gain step (one value per manifest: maps are per gain);
+``temperature_c`` (optional)
+    the sensor temperature of each stack: with a range of temperatures the
+    dark current's doubling temperature is fitted (shared by the pixels);
 ``height``, ``width`` (``.raw`` only).
 
 Every stack is opened lazily as a dask array chunked by rows (all frames of a
@@ -173,6 +176,18 @@ def load_manifest(directory: str | os.PathLike) -> Manifest:
         raise TableError(f"{path}: no stacks listed")
     if "gain" not in table.columns:
         table["gain"] = 1.0
+    if "temperature_c" not in table.columns:
+        table["temperature_c"] = np.nan
+    else:
+        temps = pd.to_numeric(table["temperature_c"], errors="coerce")
+        bad = np.flatnonzero(~np.isfinite(temps))
+        if bad.size:
+            i = int(bad[0])
+            raise TableError(
+                f"{path} row {i + 2}, column temperature_c: {table['temperature_c'][i]!r}; expected a temperature "
+                "in degC on every row (or leave the column out)"
+            )
+        table["temperature_c"] = temps.astype(float)
     table["kind"] = table["kind"].astype(str).str.strip().str.lower()
     for i, row in table.iterrows():
         where = f"{path} row {i + 2}"

@@ -54,6 +54,8 @@ class PixelSensor:
     dead_factor: float = 0.3
     noisy_factor: float = 8.0
     nonlinearity: float = 0.0  # relative compression at full scale: y -> y (1 - a y / full scale)
+    doubling_c: float = 0.0  # the dark current doubles every this many degC (0: no temperature dependence)
+    temperature_ref_c: float = 20.0  # dark_current_e_s is at this temperature
     bayer: str = ""  # e.g. "RGGB": a colour mosaic whose 2 x 2 cell has these filters, row by row
     filter_qe: tuple[tuple[str, float], ...] = (("R", 0.30), ("G", 0.50), ("B", 0.22))  # QE behind each filter
 
@@ -106,6 +108,7 @@ def write_stacks(
     frames: int = 4,
     seed: int = 0,
     shot_noise: str = "poisson",
+    temperatures_c: list[float] | None = None,
 ) -> SensorTruth:
     """Write a flat stack (and a dark stack) per illumination level; return the truth.
 
@@ -120,6 +123,9 @@ def write_stacks(
         Frames per stack (flat and dark alike).
     seed : int
         Seed of the truth and of every frame.
+    temperatures_c : list of float, optional
+        Sensor temperature of each condition (a ``temperature_c`` manifest
+        column); the dark current scales by ``2^((T - T_ref) / doubling_c)``.
     shot_noise : {"poisson", "normal"}
         ``normal`` draws the electrons from the Normal approximation of the
         Poisson law in float32 (five times faster; for throughput
@@ -133,7 +139,9 @@ def write_stacks(
     exposures = [exposure_s] * len(photons) if np.isscalar(exposure_s) else list(exposure_s)
     full = 2**sensor.bits - 1
     rows = []
+    temps = list(temperatures_c) if temperatures_c is not None else [sensor.temperature_ref_c] * len(photons)
     for c, (p, t) in enumerate(zip(photons, exposures, strict=True)):
+        heat = 2.0 ** ((temps[c] - sensor.temperature_ref_c) / sensor.doubling_c) if sensor.doubling_c else 1.0
         for kind, level in (("dark", 0.0), ("flat", p)):
             if kind == "flat" and p <= 0:
                 continue
@@ -141,7 +149,7 @@ def write_stacks(
             stack = np.lib.format.open_memmap(
                 out / name, mode="w+", dtype=np.uint16, shape=(frames, *truth.offset_dn.shape)
             )
-            mean_e = sensor.qe_map() * level * truth.relative_gain + dark_e * t
+            mean_e = sensor.qe_map() * level * truth.relative_gain + dark_e * t * heat
             if shot_noise == "normal":
                 mean_e, sd_e = mean_e.astype(np.float32), np.sqrt(mean_e).astype(np.float32)
             for f in range(frames):
@@ -156,7 +164,10 @@ def write_stacks(
                 stack[f] = np.clip(np.rint(truth.offset_dn + signal), 0, full)
             stack.flush()
             del stack
-            rows.append({"file": name, "kind": kind, "exposure_s": t, "gain": 1.0, "photons": level, "condition": c})
+            row = {"file": name, "kind": kind, "exposure_s": t, "gain": 1.0, "photons": level, "condition": c}
+            if temperatures_c is not None:
+                row["temperature_c"] = temps[c]
+            rows.append(row)
     pd.DataFrame(rows).to_csv(out / "conditions.csv", index=False)
     np.savez_compressed(
         out / "truth.npz",
