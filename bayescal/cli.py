@@ -466,12 +466,12 @@ def _cmd_maps(args) -> int:
                 ds = build_maps(manifest, **kw)
                 population(ds)
                 write_maps(ds, args.out, netcdf=True, progress=advance)
+                maps = read_maps(args.out)
             else:
-                make_maps(manifest, args.out, **kw, progress=advance, processes=True, stage=population)
+                maps = make_maps(manifest, args.out, **kw, progress=advance, processes=True, stage=population)
     finally:
         if client is not None:
             client.close()
-    maps = read_maps(args.out)
     if args.report:
         from .maps.report import maps_report
 

@@ -22,9 +22,9 @@ per stack:
     dark current's doubling temperature is fitted (shared by the pixels);
 ``height``, ``width`` (``.raw`` only).
 
-Every stack is opened lazily as a dask array chunked by rows (all frames of a
-block of rows in one chunk), so each byte is read once, by whichever worker
-reduces that block.
+Every stack is opened lazily (:class:`LazyStack`: only its path travels to a
+dask worker); each row-block task reads all frames of its rows itself, so each
+byte is read once, by whichever worker maps that block.
 """
 
 from __future__ import annotations
@@ -43,7 +43,6 @@ __all__ = [
     "LazyStack",
     "load_manifest",
     "load_stacks",
-    "open_stacks",
     "block_statistics",
     "write_emva_stacks",
 ]
@@ -275,16 +274,6 @@ def write_emva_stacks(npz: str | os.PathLike, out_dir: str | os.PathLike, *, max
             )
     pd.DataFrame(rows).to_csv(out / MANIFEST, index=False)
     return out
-
-
-def open_stacks(manifest: Manifest, rows_per_chunk: int):
-    """One dask array per stack, ``(frames, H, W)``, chunked ``(frames, rows_per_chunk, W)``."""
-    import dask.array as da
-
-    return [
-        da.from_array(s, chunks=(s.shape[0], rows_per_chunk, s.shape[2]), name=f"stack-{s.path}-{rows_per_chunk}")
-        for s in manifest.stacks
-    ]
 
 
 def block_statistics(block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
