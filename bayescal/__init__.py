@@ -36,6 +36,11 @@ _LAZY = {
     "Truth": ".design",
     "load_design": ".design",
     "Diagnostics": ".diagnostics",
+    "FleetFit": ".fleet.posterior",
+    "compare_pooling": ".fleet.posterior",
+    "fit_fleet": ".fleet.posterior",
+    "fleet_calibration": ".fleet.export",
+    "load_fleet_table": ".fleet.units",
     "Steps": ".emva",
     "load_steps": ".emva",
     "read_descriptor": ".emva",
@@ -133,6 +138,9 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from .diagnostics import Diagnostics
     from .emva import Steps, load_steps, read_descriptor
     from .fit import BACKENDS, Fit, fit
+    from .fleet.export import fleet_calibration
+    from .fleet.posterior import FleetFit, compare_pooling, fit_fleet
+    from .fleet.units import load_fleet_table
     from .images import invert_image, read_image, write_radiance_maps
     from .inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit
     from .invert import Inversion, invert, radiance_draws

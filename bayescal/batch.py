@@ -32,7 +32,7 @@ from .inference.laplace import LaplaceResult, laplace, laplace_many
 from .inference.lsq import lsq_baseline
 from .inference.nuts import NutsDraws, run_nuts_many
 from .inference.program import Program, program_for
-from .inference.samplers import laplace_problems, laplace_z, note_retry, nuts_stats
+from .inference.samplers import laplace_problems, laplace_z, note_retry, nuts_stats, refuse_pooled
 from .inference.start import initial_point
 from .spec import ModelSpec
 from .table import MeasurementTable
@@ -159,6 +159,8 @@ def fit_many(
         raise SpecError(f"fit_many supports backends {', '.join(BATCH_BACKENDS)}; got '{backend}'")
     if not tables:
         raise SpecError("fit_many needs at least one table")
+    if backend == "laplace":
+        refuse_pooled(spec)
     t0 = time.perf_counter()
     models = [build_model(t, spec) for t in tables]
     first = models[0]
@@ -278,7 +280,7 @@ def _diagnostics(draws, stats, results, resid_z, backend: str, spec: ModelSpec, 
             "misfit": ["; ".join(p) for p in misfits],
         }
     )
-    ok = frame["map_ok"].to_numpy() & (resid_z <= OUTLIER_Z)
+    ok = frame["map_ok"].to_numpy().copy()
     if backend == "laplace":  # the single-fit verdict: MAP converged, integration grid not truncated
         ok &= np.array([not laplace_problems(r, e) for e, r in zip(extras, results, strict=True)])
     if backend == "nuts":
@@ -299,6 +301,8 @@ def _diagnostics(draws, stats, results, resid_z, backend: str, spec: ModelSpec, 
             & (frame["min_ess_bulk"].to_numpy() >= settings.min_ess)
             & (frame["min_ess_tail"].to_numpy() >= settings.min_ess)
         )
+    frame["sampled"] = ok  # the posterior was computed correctly, whatever the rows say
+    ok = ok & (resid_z <= OUTLIER_Z)
     frame["converged"] = ok  # the inference is trustworthy (what SBC asks)
     frame["ok"] = ok & np.array([not p for p in misfits])  # ... and the model fits the data (what fit() asks)
     return frame

@@ -1,4 +1,4 @@
-"""Command line: ``bayescal fit | predict | invert | plan | simulate | demo``.
+"""Command line: ``bayescal fit | predict | invert | plan | simulate | demo | fleet | ...``.
 
 Exit codes: 0 success, 2 bad input (the message names the row/column or
 key), 3 a fit that failed its diagnostics (outputs are still written, marked
@@ -182,6 +182,11 @@ def _parser() -> argparse.ArgumentParser:
     se.add_argument("--without", default="", help="components to try switching off: level_errors,excess,exposure_slope")
     se.add_argument("--backend", default="laplace", choices=backends.names(), help="backend (default laplace)")
     se.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    se.add_argument(
+        "--pooling",
+        action="store_true",
+        help="a fleet table (camera column): compare no / partial / complete pooling by PSIS-LOO over units",
+    )
     se.set_defaults(func=_cmd_select)
     sc = sub.add_parser("scene", help="cheapest calibration whose inversion of an image matches the full model's")
     sc.add_argument("image", help="TIFF, PNG or NPY image (the scene)")
@@ -207,6 +212,42 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="CSV to write")
     s.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     s.set_defaults(func=_cmd_simulate)
+    fl = sub.add_parser("fleet", help="calibrate a fleet of cameras over campaigns: each alone, then the hierarchy")
+    fl.add_argument(
+        "data", help="CSV or Parquet measurement table with 'camera' and optional 'campaign' (date) columns"
+    )
+    fl.add_argument("--model", required=True, help="model spec (TOML) of one camera, with an optional [fleet] section")
+    fl.add_argument("--out", required=True, help="output directory (fleet posterior, summaries, per-camera fits)")
+    fl.add_argument(
+        "--backend", default="laplace", choices=("laplace", "nuts"), help="stage one's backend (default laplace)"
+    )
+    fl.add_argument("--pooling", choices=("partial", "none", "complete"), help="override the spec's [fleet] pooling")
+    fl.add_argument(
+        "--compare-pooling", action="store_true", help="also compare no/partial/complete pooling by PSIS-LOO"
+    )
+    fl.add_argument("--report", action="store_true", help="also write OUT/fleet_report.html")
+    fl.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    fl.add_argument("--quiet", action="store_true", help="no progress bar")
+    fl.set_defaults(func=_cmd_fleet)
+    fq = sub.add_parser("fleet-query", help="a fleet camera at a date, its drift probability, its calibration")
+    fq.add_argument("fleet", help="directory written by `bayescal fleet`")
+    who = fq.add_mutually_exclusive_group(required=True)
+    who.add_argument("--camera", help="camera name (as in the table's camera column)")
+    who.add_argument("--new-camera", action="store_true", help="a camera of the type never measured")
+    fq.add_argument("--date", help="ISO date (default: the camera's last campaign)")
+    fq.add_argument(
+        "--drift-percent", type=_finite, help="P(|gain change since the last campaign| > this %%) at --date"
+    )
+    fq.add_argument("--probability", type=_finite, default=0.05, help="risk for the recalibration date (default 0.05)")
+    fq.add_argument("--calibration", help="write this fit directory (for predict, invert, plan)")
+    fq.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    fq.set_defaults(func=_cmd_fleet_query)
+    fs = sub.add_parser("fleet-simulate", help="simulate a fleet's campaigns (independent simulator) from a design")
+    fs.add_argument("design", help="fleet design TOML, e.g. models/fleet_seed000_design.toml")
+    fs.add_argument("--out", required=True, help="measurement table CSV to write")
+    fs.add_argument("--truth", help="also write the true coefficients per unit to this CSV")
+    fs.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    fs.set_defaults(func=_cmd_fleet_simulate)
     d = sub.add_parser("demo", help="simulate the seed 000 camera, fit it, compare with least squares")
     d.add_argument("--out", default="demo-out", help="output directory (default demo-out)")
     d.add_argument("--seed", type=int, default=0, help=SEED_HELP)
@@ -559,6 +600,19 @@ def _cmd_select(args) -> int:
     from . import FitFailedWarning, load_spec, load_table
     from .select import compare_specs, f_test_orders, order_candidates
 
+    if args.pooling:
+        from .fleet import compare_pooling, load_fleet_table
+        from .fleet.stage1 import fit_units
+
+        spec, fleet = load_spec(args.model), load_fleet_table(args.data)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FitFailedWarning)
+            fits = fit_units(
+                fleet, spec, "laplace" if args.backend not in ("laplace", "nuts") else args.backend, seed=args.seed
+            )
+        print("PSIS-LOO over units (elpd_diff: this pooling minus the best; dse: its standard error):")
+        print(compare_pooling(fleet, spec, fits, seed=args.seed).to_string(float_format="%.2f"))
+        return 0
     table, spec = load_table(args.data), load_spec(args.model)
     off = tuple(x for x in args.without.split(",") if x)
     specs = order_candidates(spec, tuple(int(o) for o in args.orders), off)
@@ -725,6 +779,116 @@ def _cmd_simulate(args) -> int:
     sim = simulate(load_spec(spec_path), design, seed=args.seed)
     sim.table.write_csv(args.out)
     print(f"wrote {len(sim.table)} rows to {args.out} (sphere scale drawn: {sim.sphere_scale:.4f})")
+    return 0
+
+
+def _cmd_fleet(args) -> int:
+    from .fleet import compare_pooling, fit_fleet, load_fleet_table
+    from .io import check_output_dir, write_text_atomic
+    from .progress import progress_bar, stage_reporter
+    from .spec import load_spec
+
+    check_output_dir(args.out)
+    spec = load_spec(args.model)
+    if args.pooling:
+        spec = spec.replace(fleet={"pooling": args.pooling})
+    fleet = load_fleet_table(args.data)
+    stage = stage_reporter(args.quiet)
+    with progress_bar(len(fleet.units), "units", quiet=args.quiet) as tick:
+        result = fit_fleet(fleet, spec, args.backend, seed=args.seed, progress=tick, stage=stage)
+    d = result.draws.diagnostics
+    stage(
+        f"hierarchy: {d['divergences']} divergences, R-hat {d['max_rhat']:.4f}, "
+        f"ESS {min(d['min_ess_bulk'], d['min_ess_tail']):.0f}"
+    )
+    result.save(args.out)
+    if args.compare_pooling:
+        stage("comparing no / partial / complete pooling (PSIS-LOO over units)")
+        table = compare_pooling(fleet, spec, result.fits, seed=args.seed)
+        write_text_atomic(Path(args.out) / "pooling_loo.csv", table.to_csv(float_format="%.6g"))
+        print(table.to_string(float_format=lambda v: f"{v:.2f}"))
+    if args.report:
+        from .fleet.report import write_fleet_report
+
+        write_fleet_report(result, Path(args.out) / "fleet_report.html")
+    print(result.hyperparameters().to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    for warning in result.warnings:
+        print(f"bayescal: warning: {warning}", file=sys.stderr)
+    print(f"wrote {args.out}/: fleet.nc, summary.csv, hyperparameters.csv, units.csv, summary.json, cameras/")
+    if not result.ok:
+        print("bayescal: FLEET FIT FAILED: " + "; ".join(result.problems), file=sys.stderr)
+        return 3
+    return 0
+
+
+def _cmd_fleet_query(args) -> int:
+    import numpy as np
+
+    from .fleet import FleetFit
+    from .fleet.export import write_calibration
+
+    fleet = FleetFit.load(args.fleet)
+    camera = None if args.new_camera else args.camera
+    values = fleet.at(camera, args.date, seed=args.seed)
+    label = camera or "a new camera of the type"
+    print(f"{label} at {args.date or 'its last campaign'}:")
+    for k, kind in enumerate(fleet.kinds):
+        for c, ch in enumerate(fleet.channels):
+            v = np.exp(values[:, k, c]) if kind == "log_gain" else values[:, k, c]
+            lo, med, hi = np.quantile(v, [0.025, 0.5, 0.975])
+            name = "gain A1" if kind == "log_gain" else ("offset A0" if kind == "offset" else kind)
+            print(f"  {ch} {name}: {med:.6g} [{lo:.6g}, {hi:.6g}]")
+    if args.drift_percent is not None:
+        if camera is None or args.date is None:
+            from .errors import SpecError
+
+            raise SpecError("--drift-percent needs --camera and --date")
+        p = fleet.drift_probability(camera, args.date, args.drift_percent, seed=args.seed)
+        print(f"P(gain drifted by more than {args.drift_percent:g} % by {args.date}) = {p:.3f}")
+        when = fleet.recalibration_date(camera, args.drift_percent, args.probability)
+        print(
+            f"recalibrate by {when.date().isoformat()} (risk {args.probability:g} of a {args.drift_percent:g} % drift)"
+            if when is not None
+            else f"the risk stays below {args.probability:g} for 10 years"
+        )
+    if args.calibration:
+        write_calibration(args.fleet, args.calibration, camera, args.date, seed=args.seed)
+        print(f"wrote {args.calibration}/ (predict, invert and plan read it)")
+    return 0
+
+
+def _cmd_fleet_simulate(args) -> int:
+    import dataclasses
+    import tomllib
+
+    from .errors import SpecError
+    from .io import read_text, write_text_atomic
+    from .validation.fleet import FleetDesign, simulate_fleet
+
+    text = read_text(args.design, SpecError, "fleet design (TOML)")
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{args.design} is not valid TOML: {exc}") from None
+    fields = {f.name: f for f in dataclasses.fields(FleetDesign) if f.name != "camera"}
+    for key, value in raw.items():
+        if key not in fields:
+            raise SpecError(f"{args.design}: unknown key '{key}'; expected one of {', '.join(fields)}")
+        if key == "absent":
+            raw[key] = tuple(tuple(v) for v in value)
+        elif isinstance(value, list):
+            raw[key] = tuple(value)
+    try:
+        design = FleetDesign(**raw)
+    except TypeError as exc:
+        raise SpecError(f"{args.design}: {exc}") from None
+    if design.n_cameras < 2:
+        raise SpecError(f"{args.design}: n_cameras = {design.n_cameras}; a fleet needs at least 2")
+    table, truth = simulate_fleet(design, seed=args.seed)
+    write_text_atomic(args.out, table.to_csv(index=False, float_format="%.10g"))
+    if args.truth:
+        write_text_atomic(args.truth, truth.to_csv(index=False, float_format="%.10g"))
+    print(f"wrote {len(table)} rows ({design.n_cameras} cameras, {len(design.campaigns)} campaigns) to {args.out}")
     return 0
 
 

@@ -32,6 +32,7 @@ from .holdout import holdout_checks
 from .inference.laplace import laplace
 from .inference.lsq import lsq_baseline
 from .inference.program import program_for
+from .inference.samplers import refuse_pooled
 from .inference.start import initial_point
 from .io import staged_directory, write_json_atomic
 from .misfit import MisfitThresholds, misfit_checks
@@ -251,6 +252,8 @@ def fit(
     stage = stage or (lambda message: None)
     if backend not in BACKENDS:
         raise SpecError(f"unknown backend '{backend}'; expected one of {', '.join(BACKENDS)}")
+    if backend == "laplace":
+        refuse_pooled(spec)
     t0 = time.perf_counter()
     stage(f"assembling the model ({len(table)} rows) and the least-squares baseline")
     model = build_model(table, spec)

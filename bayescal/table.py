@@ -17,7 +17,7 @@ import pandas as pd
 from .errors import TableError
 from .io import atomic_path, read_text
 
-__all__ = ["MeasurementTable", "load_table", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
+__all__ = ["MeasurementTable", "load_table", "read_frame", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
 STIMULUS_COLUMNS = ("radiance", "irradiance")
 STIMULUS_UNITS = {"radiance": "W m^-2 sr^-1", "irradiance": "W m^-2"}
@@ -110,6 +110,17 @@ def load_table(path: str | os.PathLike) -> MeasurementTable:
     TableError
         Naming the row and column of the first problem found.
     """
+    return MeasurementTable.from_frame(read_frame(path), source=str(path))
+
+
+def read_frame(path: str | os.PathLike) -> pd.DataFrame:
+    """The raw rows of a CSV (every cell a string) or Parquet file, before validation.
+
+    Raises
+    ------
+    TableError
+        The file is missing, empty, not text, or not a well-formed table.
+    """
     import io
 
     path = Path(path)
@@ -118,20 +129,18 @@ def load_table(path: str | os.PathLike) -> MeasurementTable:
         if not path.is_file():
             raise TableError(f"no such file: {path}" if not path.exists() else f"{path} is not a file")
         try:
-            df = pd.read_parquet(path)
+            return pd.read_parquet(path)
         except Exception as exc:  # pyarrow raises its own types for every kind of corrupt file
             raise TableError(f"{path} is not a readable Parquet file ({type(exc).__name__}: {exc})") from None
-    elif suffix in (".csv", ".txt"):
+    if suffix in (".csv", ".txt"):
         text = read_text(path, TableError, "measurement table (CSV)")
         try:
-            df = pd.read_csv(io.StringIO(text), dtype=str, skipinitialspace=True, comment="#")
+            return pd.read_csv(io.StringIO(text), dtype=str, skipinitialspace=True, comment="#")
         except pd.errors.EmptyDataError as exc:
             raise TableError(f"{path} is empty; expected a header row and data rows") from exc
         except pd.errors.ParserError as exc:
             raise TableError(f"{path} is not a well-formed CSV table: {exc}") from None
-    else:
-        raise TableError(f"{path}: expected a .csv or .parquet file, got '{suffix}'")
-    return MeasurementTable.from_frame(df, source=str(path))
+    raise TableError(f"{path}: expected a .csv or .parquet file, got '{suffix}'")
 
 
 def _validate(df: pd.DataFrame, source: str) -> tuple[pd.DataFrame, str]:

@@ -19,7 +19,7 @@ from .emcee_backend import run_emcee
 from .laplace import integrated_draws, laplace_draws
 from .nuts import run_nuts
 
-__all__ = ["LaplaceBackend", "NutsBackend", "EmceeBackend", "laplace_z", "note_retry", "nuts_stats"]
+__all__ = ["LaplaceBackend", "NutsBackend", "EmceeBackend", "laplace_z", "note_retry", "nuts_stats", "refuse_pooled"]
 
 
 def laplace_z(model, program, result, seed: int, extra: dict) -> np.ndarray:
@@ -31,9 +31,20 @@ def laplace_z(model, program, result, seed: int, extra: dict) -> np.ndarray:
         extra["integrated_scale_edge_weight"] = info["edge_weight"]
     else:
         z = laplace_draws(result, settings.laplace_draws, seed)
-    if model.parts.response.spec.pooled or model.parts.dark.spec.pooled:
-        extra["warning"] = "pooling scales make the Laplace approximation unreliable; use nuts"
     return z[None]
+
+
+def refuse_pooled(spec) -> None:
+    """The Laplace backend does not handle pooling scales (the Gaussian at the joint mode
+    collapses them to zero); say so before any work."""
+    from ..errors import SpecError
+
+    if spec.response.pooled or spec.dark.pooled or spec.response.gain_prior == "pooled":
+        raise SpecError(
+            "the laplace backend cannot fit pooled channels (response.pooled, dark.pooled or gain_prior = "
+            "'pooled'): the Gaussian at the joint mode collapses the pooling scales to zero; use --backend nuts, "
+            "or pool across cameras and channels with `bayescal fleet` (its hierarchy integrates the scales)"
+        )
 
 
 def laplace_problems(result, extra: dict) -> list[str]:

@@ -161,9 +161,18 @@ class Realisation:
 
 
 def simulate_bench(
-    camera: BenchCamera | None = None, departures: Departures | None = None, seed: int = 0
+    camera: BenchCamera | None = None,
+    departures: Departures | None = None,
+    seed: int = 0,
+    *,
+    sphere_scale: float | None = None,
+    level_errors=None,
 ) -> tuple[pd.DataFrame, Realisation]:
     """A measurement table (the file a lab would write) and the truth behind it.
+
+    ``sphere_scale`` (true radiance over the sphere's reading) and ``level_errors``
+    (each lamp level's relative error) are drawn unless given: cameras measured on one
+    sphere in one campaign share them.
 
     Columns: ``channel, radiance, exposure_s, gain, dn_mean, level, n_frames,
     n_pixels, time_s``; ``radiance`` is the sphere's *nominal* reading, 0 for dark
@@ -176,6 +185,10 @@ def simulate_bench(
     factor = {g: (1.0 if g == 1.0 else 1.0 + rng.uniform(-dep.gain_step_error, dep.gain_step_error)) for g in gains}
     scale = float(np.exp(cam.sphere_common_rel * rng.standard_normal()))
     shared = cam.sphere_level_rel * rng.standard_normal(len(cam.levels))
+    if sphere_scale is not None:
+        scale = float(sphere_scale)
+    if level_errors is not None:
+        shared = np.asarray(level_errors, dtype=float)
     spectral = dep.spectral_level_rel * rng.standard_normal((len(cam.levels), len(cam.channels)))
     prnu = {c: 1.0 + dep.prnu * rng.standard_normal(cam.n_pixels) for c in cam.channels}
     real = Realisation(cam, dep, factor, scale, prnu)

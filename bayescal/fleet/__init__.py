@@ -1,0 +1,11 @@
+"""Fleets of cameras of one type, calibrated over campaigns: a two-stage hierarchy.
+
+units (the table split per camera and campaign) -> stage1 (each unit alone, its likelihood
+as a Gaussian) -> model, sampling (the hierarchy by NUTS) -> posterior (predictions,
+drift, recalibration, per-camera calibrations) -> report.  docs/architecture.md, section 8.
+"""
+
+from .posterior import FleetFit, compare_pooling, fit_fleet
+from .units import FleetTable, load_fleet_table
+
+__all__ = ["FleetFit", "FleetTable", "compare_pooling", "fit_fleet", "load_fleet_table"]

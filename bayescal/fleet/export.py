@@ -1,0 +1,115 @@
+"""A camera's calibration from the fleet, as a fit directory that every verb reads.
+
+The fleet posterior gives a camera's gain, offset and nonlinearity at a date (shrunk
+toward the fleet, drift extrapolated, or drawn from the population for a camera that
+was never measured).  Everything else a calibration needs (dark slopes per gain, the
+settings' effective factors, noise) comes from the camera's latest stage-one fit (for
+a camera never measured: from a measured camera of the type, named in the output).
+The result is a ``posterior.nc`` in the layout of ``bayescal fit``, so ``predict``,
+``invert``, ``plan`` and ``report`` use it unchanged (docs/architecture.md, section 8).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..basis import response_monomials
+from ..errors import PosteriorError
+from .posterior import FleetFit, _safe
+
+__all__ = ["fleet_calibration", "write_calibration"]
+
+
+def write_calibration(
+    fleet_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    camera: str | None,
+    date=None,
+    *,
+    template: str | None = None,
+    seed: int = 0,
+) -> Path:
+    """Write ``out_dir``: camera ``camera`` (None: one never measured) calibrated at ``date``.
+
+    Parameters
+    ----------
+    fleet_dir : path
+        A directory written by ``bayescal fleet``.
+    date : str or Timestamp, optional
+        Default: the camera's last campaign (required for a camera never measured).
+    template : str, optional
+        The measured camera whose stage-one fit supplies the quantities the fleet does
+        not model (default: the camera itself; for a new camera, the fleet's first).
+    """
+    import arviz as az
+
+    from ..io import check_output_dir, staged_directory, write_json_atomic
+
+    fleet_dir = Path(fleet_dir)
+    fleet = FleetFit.load(fleet_dir)
+    check_output_dir(out_dir)
+    source = template or camera or fleet.cameras[0]
+    fleet.camera_index(source)
+    path = fleet_dir / "cameras" / _safe(source) / "posterior.nc"
+    if not path.is_file():
+        raise PosteriorError(f"{path} is missing; the fleet directory is incomplete (re-run `bayescal fleet`)")
+    tree = az.from_netcdf(path)
+    post = tree["posterior"].to_dataset()
+    chains, draws = post.sizes["chain"], post.sizes["draw"]
+    values = fleet.at(camera, date, seed=seed)  # (S, K, C)
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA11B]))
+    values = values[rng.integers(0, values.shape[0], chains * draws)]
+    kinds = list(fleet.kinds)
+    gain = np.exp(values[:, kinds.index("log_gain")])  # (S, C)
+    offset = values[:, kinds.index("offset")]
+    eta = (
+        np.stack([values[:, kinds.index(k)] for k in kinds if k.startswith("eta")], axis=-1) if len(kinds) > 2 else None
+    )
+    spec = fleet.spec
+    order = spec.response.order
+    full = spec.full_scale
+    coef = response_monomials(gain / full, eta, order) * full  # DN per stimulus^k: S(L) with v = gain L / full scale
+    coef[..., 0] = offset
+    shape = (chains, draws)
+    old_a0 = np.asarray(post["A_abs"])[..., 0].reshape(chains * draws, -1)
+    shift = (offset - old_a0).reshape(shape + (-1,))
+    post["A_abs"] = (post["A_abs"].dims, coef.reshape(shape + coef.shape[1:]))
+    post["A_rel"] = (post["A_rel"].dims, coef.reshape(shape + coef.shape[1:]))
+    post["gain"] = (post["gain"].dims, gain.reshape(shape + gain.shape[1:]))
+    post["gain_rel"] = (post["gain_rel"].dims, gain.reshape(shape + gain.shape[1:]))
+    if eta is not None and "nonlinearity" in post:
+        post["nonlinearity"] = (post["nonlinearity"].dims, eta.reshape(shape + eta.shape[1:]))
+    for name in ("dark_offset", "dark_offset_ref"):
+        if name in post:
+            extra = post[name].ndim - shift.ndim
+            post[name] = post[name] + shift.reshape(shift.shape + (1,) * extra)
+    if "sphere_scale" in post:
+        post["sphere_scale"] = post["sphere_scale"] * 0 + 1.0
+    tree["posterior"] = post
+    label = camera or "a camera of the type never measured"
+    when = "its last campaign" if date is None else str(date)
+    tree.attrs["fleet_source"] = f"{fleet_dir} camera={label} date={when} template={source} seed={seed}"
+    with staged_directory(out_dir, kind="fit") as stage:
+        tree.to_netcdf(stage("posterior.nc"), engine="h5netcdf")
+        write_json_atomic(
+            stage("summary.json"),
+            {
+                "status": "ok" if fleet.ok else "FAILED",
+                "backend": "fleet",
+                "seed": seed,
+                "camera": camera,
+                "date": None if date is None else str(date),
+                "template": source,
+                "fleet": str(fleet_dir),
+                "note": "gain, offset and nonlinearity from the fleet hierarchy (absolute: the sphere's scale "
+                "folded in by the fleet); dark slopes, setting factors and noise from the template camera's fit",
+            },
+        )
+    return Path(out_dir)
+
+
+#: the public name (``bayescal.fleet_calibration``)
+fleet_calibration = write_calibration

@@ -1,0 +1,464 @@
+"""Stage two of the fleet model: the hierarchy over channels, cameras and campaigns.
+
+Each unit ``u`` (camera ``m`` measured at campaign time ``t_u``, years) reports a
+Gaussian likelihood of its fleet quantities ``y_u`` (:mod:`.stage1`).  Per
+quantity kind ``k`` (log gain, offset, nonlinearity terms) and channel ``c``::
+
+    theta[k, u, c] = level[k, m, c] + drift[k, u]            (+ sphere[j(u)] for the log gain)
+    level[k, m, c] = mu[k, c] + a[k, m] + b[k, m, c]
+    a[k, m] ~ Normal(0, sigma_camera[k])                     the camera within the type
+    b[k, m, c] ~ Normal(0, sigma_channel[k])                 the channel within the camera
+    drift[k, u] = (rho[k] + r[k, m]) (t_u - t_mean) + w[k, u] + e[k, u]   log gain and offset only
+    r[k, m] ~ Normal(0, rate_sd[k])                          the fleet's spread of drift rates
+    w[k, u] = w[k, u-1] + walk_sd[k] sqrt(t_u - t_{u-1}) z   a random walk per camera
+    e[k, u] ~ Normal(0, jitter_sd[k])                        the unit's own state in that campaign
+    sphere[j] ~ Normal(0, common_rel)                        the sphere's log scale error, per campaign
+    state[j] ~ Normal(0, campaign_sd)                        the fleet's own state in campaign j (log gain)
+    y_u ~ MultivariateNormal(theta[:, u, :] (+ sphere), Sigma_u)
+
+Given the scales ``h = (sigma_camera, sigma_channel, rate_sd, walk_sd)`` everything
+else is linear and Gaussian, so it is integrated out exactly: NUTS samples only the
+few scales on their marginal likelihood (no funnel to parametrise around, whatever
+the data's strength), and every other quantity is then drawn from its Gaussian
+conditional, per draw.  The latent precision is block-arrowhead (one block per camera
+plus the fleet-wide ``mu``, ``rho`` and sphere terms), so each evaluation costs one
+small Cholesky factor per camera and one of the global block (Schur complement).
+Quantities are standardised by the spread of the units' estimates, so one set of
+hyperpriors (:class:`~bayescal.spec.FleetSpec`) serves gains and offsets
+(docs/architecture.md, section 8).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..spec import FleetSpec
+from .stage1 import UnitFits
+from .units import to_years
+
+__all__ = ["FleetData", "Plan", "fleet_data", "log_marginal", "conditional_draws", "HYPER"]
+
+#: the prior sd of a camera's level without pooling (standardised units: effectively flat)
+UNPOOLED_SD = 30.0
+#: prior variance of a global term that a pooling leaves out (effectively fixed at 0)
+ABSENT_VAR = 1e-10
+#: the sampled scales, in order, and the kinds each has (K: every kind, 2: the drifting ones)
+HYPER = ("sigma_camera", "sigma_channel", "rate_sd", "walk_sd", "excess")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The static structure of one fleet model (one compilation per plan and data shape).
+
+    Latent slots per kind: global ``[mu_c (C), rho, sphere_j (J)]``, per camera
+    ``[a, b_c (C), r, walk steps (max_walk), unit jitters (max_units), shared error (C)]``;
+    slots a kind does not use stay inactive.
+    """
+
+    n_kinds: int
+    n_channels: int
+    n_cameras: int
+    n_units: int
+    n_spheres: int
+    n_walk: int
+    max_walk: int
+    drift: bool
+    walk: bool
+    pooling: str
+    spread_prior: float
+    rate_prior: float
+    walk_prior: float
+    excess: bool = True
+    excess_prior: float = 2.0
+    max_units: int = 0
+    jitter_prior: float = 0.3
+    shared: bool = False
+    n_campaigns: int = 0  # fleet-wide campaign states of the log gain (0: none)
+
+    @property
+    def jitter(self) -> bool:
+        return self.max_units > 0
+
+    @property
+    def n_drift(self) -> int:
+        return 2 if self.drift else 0
+
+    @property
+    def n_global(self) -> int:
+        return self.n_channels + 1 + self.n_spheres + self.n_campaigns
+
+    @property
+    def block(self) -> int:
+        return self.shared_base + (self.n_channels if self.shared else 0)
+
+    @property
+    def shared_base(self) -> int:
+        return 2 + self.n_channels + max(self.max_walk, 0) + self.max_units
+
+    @property
+    def jitter_base(self) -> int:
+        return 2 + self.n_channels + max(self.max_walk, 0)
+
+    def sampled(self) -> dict[str, int]:
+        """The scales NUTS samples and their sizes."""
+        out = {}
+        if self.pooling == "partial":
+            out |= {"sigma_camera": self.n_kinds, "sigma_channel": self.n_kinds}
+            if self.drift:
+                out["rate_sd"] = 2
+        if self.walk:
+            out["walk_sd"] = 2
+        if self.jitter:
+            out["jitter_sd"] = 2
+        if self.excess:
+            out["excess"] = self.n_kinds
+        return out
+
+
+@dataclass(frozen=True)
+class FleetData:
+    """The stage-two model's arrays (standardised) and how to undo the standardisation.
+
+    ``value = center[k, c] + scale[k] * theta``.  Per kind (leading ``K``): ``g_*`` and
+    ``b_*`` are the blocks of ``H' Sigma^-1 H`` and ``H' Sigma^-1 y`` (global ``g``, per
+    camera ``m``), ``yy`` is ``y' Sigma^-1 y``.
+    """
+
+    y: np.ndarray  # (U, K*C)
+    chol: np.ndarray  # (U, K*C, K*C) Cholesky factors of the units' covariances (kind-block-diagonal)
+    camera: np.ndarray  # (U,) int
+    sphere: np.ndarray  # (U,) int
+    t: np.ndarray  # (U,) years minus t_mean
+    years: np.ndarray  # (U,) years since the origin
+    walk_units: np.ndarray  # (n_walk,) units that follow an earlier one of their camera
+    walk_dt: np.ndarray  # (n_walk,) years since that earlier unit
+    walk_slot: np.ndarray  # (n_walk,) the step's slot in its camera's block
+    unit_slot: np.ndarray  # (U,) the unit's place among its camera's units
+    shared_chol: np.ndarray  # (K, M, C, C) factor of each camera's repeating error covariance
+    campaign: np.ndarray  # (U,) the unit's campaign
+    campaign_sd: float  # the fleet-wide campaign state's sd (standardised log gain; 0: none)
+    sphere_sd: float  # common_rel in standardised log-gain units
+    center: np.ndarray  # (K, C)
+    scale: np.ndarray  # (K,)
+    t_mean: float
+    g_gg: np.ndarray  # (K, G, G)
+    g_gm: np.ndarray  # (K, M, G, B)
+    g_mm: np.ndarray  # (K, M, B, B)
+    b_g: np.ndarray  # (K, G)
+    b_m: np.ndarray  # (K, M, B)
+    prior_var_g: np.ndarray  # (K, G)
+    active: np.ndarray  # (K, M, B) 1 where the slot is a real latent
+    yy: np.ndarray  # (K,)
+    n_rows: np.ndarray  # (K,) observations of each kind
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The traced arguments of the marginal likelihood."""
+        names = ("g_gg", "g_gm", "g_mm", "b_g", "b_m", "prior_var_g", "active", "yy", "n_rows")
+        return {k: getattr(self, k) for k in names}
+
+
+def fleet_data(fits: UnitFits, fleet_spec: FleetSpec, common_rel: float) -> tuple[FleetData, Plan]:
+    """Standardise the stage-one summaries and build the blocks of the marginal likelihood."""
+    fleet = fits.fleet
+    units = fleet.units
+    n_units, n_kinds, n_ch = fits.mean.shape
+    cam_index = {c: i for i, c in enumerate(fleet.cameras)}
+    camera = np.array([cam_index[u.camera] for u in units])
+    n_cam = len(fleet.cameras)
+    years = to_years([u.campaign for u in units], fleet.origin) if fleet.origin is not None else np.zeros(n_units)
+    campaigns = sorted(set(years.tolist()))
+    drift = fleet_spec.drift and len(campaigns) >= 2
+    if fleet_spec.sphere == "shared" or not campaigns:
+        sphere = np.zeros(n_units, dtype=int)
+    else:
+        sphere = np.array([campaigns.index(y) for y in years])
+    # standardise each kind by the spread of the units' estimates (or their noise, if larger)
+    sd = np.sqrt(np.diagonal(fits.cov, axis1=1, axis2=2)).reshape(n_units, n_kinds, n_ch)
+    center = fits.mean.mean(axis=0)
+    spread = np.sqrt(np.mean(fits.mean.var(axis=0), axis=1))
+    scale = np.maximum(spread, np.median(sd, axis=(0, 2)))
+    scale = np.where(scale > 0, scale, 1.0)
+    y = (fits.mean - center) / scale[None, :, None]  # (U, K, C)
+    s_vec = np.repeat(scale, n_ch)
+    cov = fits.cov / np.outer(s_vec, s_vec)
+    # each kind's own (marginal) likelihood: a kind the hierarchy describes less well (a gain
+    # that ages along a curve) must not pull another (the offset) through their correlation
+    cov = cov * np.kron(np.eye(n_kinds), np.ones((n_ch, n_ch)))
+    # a fraction of each unit's error repeats in every campaign of its camera (the same method's
+    # systematic errors): a camera-level error term carries it, so campaigns do not average it away
+    rho = fleet_spec.shared_error
+    shared_chol = np.zeros((n_kinds, n_cam, n_ch, n_ch))
+    if rho > 0:
+        for m in range(n_cam):
+            mean_cov = cov[camera == m].mean(axis=0)
+            for k in range(n_kinds):
+                sl = slice(k * n_ch, (k + 1) * n_ch)
+                shared_chol[k, m] = np.linalg.cholesky(rho * mean_cov[sl, sl] + 1e-15 * np.eye(n_ch))
+        cov = (1.0 - rho) * cov
+    chol = np.linalg.cholesky(cov + 1e-12 * np.eye(cov.shape[-1]))
+    t_mean = float(years.mean())
+    t = years - t_mean
+    walk_units, walk_dt, walk_slot = [], [], []
+    if drift and fleet_spec.walk:
+        prev: dict[int, int] = {}
+        count: dict[int, int] = {}
+        for u in range(n_units):
+            m = int(camera[u])
+            if m in prev and years[u] > years[prev[m]]:
+                walk_units.append(u)
+                walk_dt.append(years[u] - years[prev[m]])
+                walk_slot.append(count.get(m, 0))
+                count[m] = count.get(m, 0) + 1
+            prev[m] = u
+    max_walk = max(walk_slot, default=-1) + 1
+    unit_slot = np.zeros(n_units, dtype=int)
+    seen: dict[int, int] = {}
+    for u in range(n_units):
+        unit_slot[u] = seen.get(int(camera[u]), 0)
+        seen[int(camera[u])] = unit_slot[u] + 1
+    max_units = int(unit_slot.max()) + 1 if drift and fleet_spec.jitter else 0
+    plan = Plan(
+        n_kinds=n_kinds,
+        n_channels=n_ch,
+        n_cameras=n_cam,
+        n_units=n_units,
+        n_spheres=int(sphere.max()) + 1,
+        n_campaigns=len(campaigns) if drift and fleet_spec.campaign_sd > 0 else 0,
+        n_walk=len(walk_units),
+        max_walk=max_walk,
+        drift=drift,
+        walk=max_walk > 0,
+        pooling=fleet_spec.pooling,
+        spread_prior=fleet_spec.spread_prior,
+        rate_prior=fleet_spec.rate_prior,
+        walk_prior=fleet_spec.walk_prior,
+        excess=fleet_spec.excess,
+        excess_prior=fleet_spec.excess_prior,
+        max_units=max_units,
+        jitter_prior=fleet_spec.jitter_prior,
+        shared=rho > 0,
+    )
+    walk = (np.asarray(walk_units, int), np.asarray(walk_dt, float), np.asarray(walk_slot, int))
+    campaign = np.array([campaigns.index(y) for y in years]) if campaigns else np.zeros(n_units, dtype=int)
+    h_g, h_m, active = _design(plan, camera, sphere, t, *walk, unit_slot, shared_chol, campaign)
+    g_gg = np.zeros((n_kinds, plan.n_global, plan.n_global))
+    g_gm = np.zeros((n_kinds, n_cam, plan.n_global, plan.block))
+    g_mm = np.zeros((n_kinds, n_cam, plan.block, plan.block))
+    b_g = np.zeros((n_kinds, plan.n_global))
+    b_m = np.zeros((n_kinds, n_cam, plan.block))
+    yy = np.zeros(n_kinds)
+    for k in range(n_kinds):
+        sl = slice(k * n_ch, (k + 1) * n_ch)
+        prec = np.linalg.inv(cov[:, sl, sl])  # (U, C, C)
+        py = np.einsum("uqr,ur->uq", prec, y[:, k])
+        yy[k] = np.einsum("uq,uq->", y[:, k], py)
+        g_gg[k] = np.einsum("uqg,uqr,urh->gh", h_g[k], prec, h_g[k])
+        b_g[k] = np.einsum("uqg,uq->g", h_g[k], py)
+        for u in range(n_units):
+            m = camera[u]
+            g_gm[k, m] += h_g[k, u].T @ prec[u] @ h_m[k, u]
+            g_mm[k, m] += h_m[k, u].T @ prec[u] @ h_m[k, u]
+            b_m[k, m] += h_m[k, u].T @ py[u]
+    prior_var_g = np.ones((n_kinds, plan.n_global))  # unused slots: N(0, 1), untouched by data
+    prior_var_g[:, :n_ch] = 9.0 if plan.pooling != "none" else ABSENT_VAR
+    if drift:
+        prior_var_g[:2, n_ch] = fleet_spec.rate_prior**2 if plan.pooling != "none" else ABSENT_VAR
+    sphere_var = (np.log1p(common_rel) / scale[0]) ** 2 if common_rel > 0 else ABSENT_VAR
+    prior_var_g[0, n_ch + 1 : n_ch + 1 + plan.n_spheres] = sphere_var
+    if plan.n_campaigns:
+        prior_var_g[0, n_ch + 1 + plan.n_spheres :] = (fleet_spec.campaign_sd / scale[0]) ** 2
+    data = FleetData(
+        y=y.reshape(n_units, -1),
+        chol=chol,
+        camera=camera,
+        sphere=sphere,
+        t=t,
+        years=years,
+        walk_units=walk[0],
+        walk_dt=walk[1],
+        walk_slot=walk[2],
+        unit_slot=unit_slot,
+        shared_chol=shared_chol,
+        campaign=campaign,
+        campaign_sd=float(fleet_spec.campaign_sd / scale[0]) if plan.n_campaigns else 0.0,
+        sphere_sd=float(np.sqrt(sphere_var)),
+        center=center,
+        scale=scale,
+        t_mean=t_mean,
+        g_gg=g_gg,
+        g_gm=g_gm,
+        g_mm=g_mm,
+        b_g=b_g,
+        b_m=b_m,
+        prior_var_g=prior_var_g,
+        active=active,
+        yy=yy,
+        n_rows=np.full(n_kinds, float(n_units * n_ch)),
+    )
+    return data, plan
+
+
+def _design(plan: Plan, camera, sphere, t, walk_units, walk_dt, walk_slot, unit_slot, shared_chol=None, campaign=None):
+    """``H`` per kind: global columns ``(K, U, C, G)`` and own-camera columns ``(K, U, C, B)``."""
+    k_n, c_n = plan.n_kinds, plan.n_channels
+    h_g = np.zeros((k_n, plan.n_units, c_n, plan.n_global))
+    h_m = np.zeros((k_n, plan.n_units, c_n, plan.block))
+    active = np.zeros((k_n, plan.n_cameras, plan.block))
+    r_slot, w_base = 1 + c_n, 2 + c_n
+    for k in range(k_n):
+        drifting = k < plan.n_drift
+        for u in range(plan.n_units):
+            m = camera[u]
+            for c in range(c_n):
+                h_g[k, u, c, c] = 1.0  # mu_c
+                h_m[k, u, c, 0] = 1.0  # a
+                h_m[k, u, c, 1 + c] = 1.0  # b_c
+                if drifting:
+                    h_g[k, u, c, c_n] = t[u]  # rho
+                    h_m[k, u, c, r_slot] = t[u]  # r
+                    for j in np.flatnonzero(camera[walk_units] == m):
+                        if t[walk_units[j]] <= t[u]:
+                            h_m[k, u, c, w_base + walk_slot[j]] = np.sqrt(walk_dt[j])
+                    if plan.jitter:
+                        h_m[k, u, c, plan.jitter_base + unit_slot[u]] = 1.0  # this campaign's own state
+                if k == 0:
+                    h_g[k, u, c, c_n + 1 + sphere[u]] = 1.0
+                    if plan.n_campaigns:  # the fleet's state in that campaign (not a straight line)
+                        h_g[k, u, c, c_n + 1 + plan.n_spheres + campaign[u]] = 1.0
+            if plan.shared:  # the camera's repeating error, correlated across channels as the units' are
+                h_m[k, u, :, plan.shared_base : plan.shared_base + c_n] = shared_chol[k, m]
+        active[k, :, : 1 + c_n] = 1.0
+        if drifting:
+            active[k, :, r_slot] = 1.0
+            for j, v in enumerate(walk_units):
+                active[k, camera[v], w_base + walk_slot[j]] = 1.0
+            if plan.jitter:
+                for u in range(plan.n_units):
+                    active[k, camera[u], plan.jitter_base + unit_slot[u]] = 1.0
+        if plan.shared:
+            active[k, :, plan.shared_base :] = 1.0
+    return h_g, h_m, active
+
+
+def block_scales(plan: Plan, hyper: dict, xp=np):
+    """The scale of each camera slot per kind, ``(K, B)``, from the scales' values."""
+    k_n, c_n = plan.n_kinds, plan.n_channels
+    pad = xp.zeros(k_n - 2) if plan.drift else None
+    if plan.pooling == "partial":
+        s_cam, s_ch = hyper["sigma_camera"], hyper["sigma_channel"]
+        tau = xp.concatenate([hyper["rate_sd"], pad]) if plan.drift else xp.zeros(k_n)
+    elif plan.pooling == "none":
+        s_cam, s_ch = xp.zeros(k_n), xp.full(k_n, UNPOOLED_SD)
+        tau = xp.full(k_n, 4.0 * plan.rate_prior)
+    else:
+        s_cam = s_ch = tau = xp.zeros(k_n)
+    walk = xp.concatenate([hyper["walk_sd"], pad]) if plan.walk else xp.zeros(k_n)
+    cols = [s_cam[:, None], xp.repeat(s_ch[:, None], c_n, axis=1), tau[:, None]]
+    cols.append(xp.repeat(walk[:, None], max(plan.max_walk, 0), axis=1))
+    if plan.jitter:
+        jitter = xp.concatenate([hyper["jitter_sd"], pad])
+        cols.append(xp.repeat(jitter[:, None], plan.max_units, axis=1))
+    if plan.shared:  # scaled with the units' own errors by the excess dispersion
+        kappa = hyper["excess"] if "excess" in hyper else xp.ones(k_n)
+        cols.append(xp.repeat(xp.sqrt(kappa)[:, None], c_n, axis=1))
+    return xp.concatenate(cols, axis=1)
+
+
+def log_marginal(plan: Plan, hyper: dict, arrays: dict):
+    """log p(y | scales) up to a constant: every linear latent integrated out, summed over kinds.
+
+    With ``P_m = L_m L_m'`` per camera, ``X = L_m^-1 [P_mg | b_m]`` in one triangular solve;
+    the global block's Schur complement is ``P_gg - sum X_g' X_g``.
+    """
+    import jax.numpy as jnp
+    import jax.scipy.linalg as jsl
+
+    kappa = hyper["excess"] if "excess" in hyper else jnp.ones(plan.n_kinds)
+    sc = block_scales(plan, hyper, jnp)[:, None, :] * arrays["active"]  # (K, M, B)
+    w = 1.0 / kappa
+    p_mm = sc[..., :, None] * arrays["g_mm"] * w[:, None, None, None] * sc[..., None, :] + jnp.eye(plan.block)
+    l_m = jnp.linalg.cholesky(p_mm)
+    p_mg = jnp.swapaxes(arrays["g_gm"], -1, -2) * (w[:, None, None, None] * sc[..., :, None])  # (K, M, B, G)
+    bm_s = sc * arrays["b_m"] * w[:, None, None]
+    x = jsl.solve_triangular(l_m, jnp.concatenate([p_mg, bm_s[..., None]], axis=-1), lower=True)
+    x_g, x_b = x[..., :-1], x[..., -1]
+    schur = (
+        arrays["g_gg"] * w[:, None, None]
+        + _diag(1.0 / arrays["prior_var_g"], jnp)
+        - jnp.einsum("kmbg,kmbh->kgh", x_g, x_g)
+    )
+    b_g2 = arrays["b_g"] * w[:, None] - jnp.einsum("kmbg,kmb->kg", x_g, x_b)
+    l_s = jnp.linalg.cholesky(schur)
+    v = jsl.solve_triangular(l_s, b_g2[..., None], lower=True)[..., 0]
+    quad = jnp.sum(x_b * x_b) + jnp.sum(v * v)
+    logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(l_m, axis1=-2, axis2=-1))) + 2.0 * jnp.sum(
+        jnp.log(jnp.diagonal(l_s, axis1=-2, axis2=-1))
+    )
+    return (
+        0.5 * quad - 0.5 * logdet - 0.5 * jnp.sum(arrays["yy"] * w) - 0.5 * jnp.sum(arrays["n_rows"] * jnp.log(kappa))
+    )
+
+
+def _factor(plan, sc, kappa, arrays, xp):
+    """The factorisation shared by the marginal likelihood and the conditional draws.
+
+    ``sc``: ``(..., K, M, B)``; ``kappa``: ``(..., K)``; leading dims broadcast (draws).
+    """
+    w = 1.0 / kappa
+    g_mm = arrays["g_mm"] * w[..., None, None, None]
+    g_gm = arrays["g_gm"] * w[..., None, None, None]
+    p_mm = sc[..., :, None] * g_mm * sc[..., None, :] + xp.eye(plan.block)
+    l_m = xp.linalg.cholesky(p_mm)
+    p_gm = g_gm * sc[..., None, :]  # (..., K, M, G, B)
+    bm_s = sc * arrays["b_m"] * w[..., None, None]
+    x_mg = _solve_chol(l_m, xp.swapaxes(p_gm, -1, -2), xp)  # (..., K, M, B, G)
+    x_b = _solve_chol(l_m, bm_s, xp)
+    schur = (
+        arrays["g_gg"] * w[..., None, None]
+        + _diag(1.0 / arrays["prior_var_g"], xp)
+        - xp.einsum("...mgb,...mbh->...gh", p_gm, x_mg)
+    )
+    l_s = xp.linalg.cholesky(schur)
+    b_g2 = arrays["b_g"] * w[..., None] - xp.einsum("...mgb,...mb->...g", p_gm, x_b)
+    return bm_s, x_b, l_m, l_s, b_g2
+
+
+def _diag(v, xp):
+    return v[..., :, None] * xp.eye(v.shape[-1])
+
+
+def _solve_chol(low, b, xp):
+    """``(L L')^-1 b`` for batched lower factors; ``b`` a vector or a matrix per factor."""
+    vector = b.ndim == low.ndim - 1
+    rhs = b[..., None] if vector else b
+    if xp is np:
+        out = np.linalg.solve(np.swapaxes(low, -1, -2), np.linalg.solve(low, rhs))
+    else:
+        import jax.scipy.linalg as jsl
+
+        out = jsl.solve_triangular(low, rhs, lower=True)
+        out = jsl.solve_triangular(xp.swapaxes(low, -1, -2), out, lower=False)
+    return out[..., 0] if vector else out
+
+
+def conditional_draws(plan: Plan, hyper: dict, arrays: dict, rng: np.random.Generator):
+    """Draws of the linear latents given each draw of the scales (NumPy, batched over draws).
+
+    ``hyper``: scale name -> ``(S, size)``.  Returns the global coefficients ``(S, K, G)``
+    and the per-camera ones ``(S, K, M, B)`` (already multiplied by their scales).
+    """
+    s = next(iter(hyper.values())).shape[0] if hyper else 1
+    sc = np.stack([block_scales(plan, {k: v[i] for k, v in hyper.items()}) for i in range(s)])  # (S, K, B)
+    sc = sc[:, :, None, :] * arrays["active"][None]  # (S, K, M, B)
+    kappa = hyper["excess"] if "excess" in hyper else np.ones((s, plan.n_kinds))
+    bm_s, x_b, l_m, l_s, b_g2 = _factor(plan, sc, kappa, arrays, np)
+    z_g = rng.standard_normal(b_g2.shape)
+    g = _solve_chol(l_s, b_g2, np) + np.linalg.solve(np.swapaxes(l_s, -1, -2), z_g[..., None])[..., 0]
+    w = 1.0 / kappa
+    p_gm = arrays["g_gm"] * w[:, :, None, None, None] * sc[..., None, :]
+    rhs = bm_s - np.einsum("skmgb,skg->skmb", p_gm, g)
+    z_m = rng.standard_normal(rhs.shape)
+    cam = _solve_chol(l_m, rhs, np) + np.linalg.solve(np.swapaxes(l_m, -1, -2), z_m[..., None])[..., 0]
+    return g, sc * cam

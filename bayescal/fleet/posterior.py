@@ -1,0 +1,544 @@
+"""A fitted fleet: per-camera calibrations shrunk toward the fleet, predictions, recalibration.
+
+:func:`fit_fleet` runs both stages (docs/architecture.md, section 8);
+:class:`FleetFit` answers the fleet's questions from the stage-two draws:
+
+- a camera's log gain, offset and nonlinearity at any date (measured campaigns,
+  between them, or ahead: the trend extrapolated and the random walk's spread
+  growing as the square root of the time since the last campaign);
+- the same for a camera of the type that was never measured (the population's
+  predictive distribution);
+- ``P(|gain(D) / gain(last campaign) - 1| > p)``: has the camera drifted by more
+  than ``p`` by date ``D``; and the first date at which that probability passes a
+  threshold (when to recalibrate);
+- a full :class:`~bayescal.calibration.Calibration` (a fit directory that
+  ``predict``, ``invert`` and ``plan`` read) for a camera at a date.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..errors import PosteriorError, SpecError
+from ..spec import ModelSpec
+from .model import FleetData, Plan, fleet_data
+from .sampling import FleetDraws, loo_of, sample_fleet
+from .stage1 import UnitFits, fit_units
+from .units import DAYS_PER_YEAR, FleetTable
+
+__all__ = ["FleetFit", "fit_fleet", "compare_pooling"]
+
+#: the fleet posterior file inside a fleet directory
+FLEET_FILE = "fleet.nc"
+#: sqrt(kappa) above which the units' scatter fails the fit (their own intervals 3x too narrow)
+EXCESS_LIMIT = 3.0
+
+
+@dataclass(frozen=True, eq=False)
+class FleetFit:
+    """Both stages of a fleet fit.
+
+    Attributes
+    ----------
+    spec : ModelSpec
+    kinds, channels, cameras : tuple of str
+    units : pandas.DataFrame
+        Per unit: ``camera``, ``campaign`` (ISO date or None), ``years`` (since the
+        first campaign), stage-one ``ok`` and ``converged``, and its likelihood's
+        centre and sd per quantity (``log_gain_R``, ``sd_log_gain_R``, ...).
+    data : FleetData
+    plan : Plan
+    draws : FleetDraws
+    origin : pandas.Timestamp or None
+    fits : UnitFits or None
+        The stage-one fits (in memory only; None for a loaded fleet).
+    seed : int
+    """
+
+    spec: ModelSpec
+    kinds: tuple[str, ...]
+    channels: tuple[str, ...]
+    cameras: tuple[str, ...]
+    units: pd.DataFrame
+    data: FleetData
+    plan: Plan
+    draws: FleetDraws
+    origin: pd.Timestamp | None
+    fits: UnitFits | None
+    seed: int
+    unit_mean: np.ndarray  # (U, K, C) stage-one likelihood centres
+    unit_cov: np.ndarray  # (U, K*C, K*C)
+
+    # ------------------------------------------------------------ verdict
+    @property
+    def problems(self) -> list[str]:
+        """What stops the fleet fit from being trusted (empty: it passed)."""
+        d = self.draws.diagnostics
+        inf = self.spec.inference
+        out = []
+        if d["divergences"]:
+            out.append(f"{d['divergences']} divergent transitions in the fleet hierarchy")
+        if np.isfinite(d["max_rhat"]) and d["max_rhat"] > inf.max_rhat:
+            out.append(f"R-hat {d['max_rhat']:.3f} > {inf.max_rhat}")
+        if d["min_ess_bulk"] < inf.min_ess or d["min_ess_tail"] < inf.min_ess:
+            out.append(f"ESS {min(d['min_ess_bulk'], d['min_ess_tail']):.0f} < {inf.min_ess:.0f}")
+        bad = self.units[~self.units["converged"]]
+        for _, r in bad.iterrows():
+            out.append(f"unit {r['camera']} {r['campaign'] or ''} did not converge in stage one")
+        if "excess" in self.draws.draws:
+            root = np.sqrt(np.median(self._flat("excess"), axis=0))
+            for kind, r in zip(self.kinds, root, strict=True):
+                if r > EXCESS_LIMIT:
+                    out.append(
+                        f"the units' {kind} estimates scatter {r:.1f}x more than their own intervals allow "
+                        "(the channel model or the hierarchy does not describe these cameras)"
+                    )
+        return out
+
+    @property
+    def ok(self) -> bool:
+        """Whether both stages passed their checks."""
+        return not self.problems
+
+    @property
+    def warnings(self) -> list[str]:
+        """Units whose own fit flags rows the channel model does not describe (outliers, misfit).
+
+        They do not fail the fleet: what the hierarchy uses is each unit's summary, and the
+        units' scatter about the hierarchy widens every interval by ``sqrt(kappa)``, which
+        fails the fit past :data:`EXCESS_LIMIT`."""
+        out = []
+        for _, r in self.units[self.units["converged"] & ~self.units["ok"]].iterrows():
+            why = r["misfit"] or f"a row {r['max_abs_residual_z']:.1f} sd from the model"
+            out.append(f"unit {r['camera']} {r['campaign'] or ''}: the channel model misfits its data ({why})")
+        return out
+
+    # ------------------------------------------------------------- values
+    def _physical(self, theta: np.ndarray) -> np.ndarray:
+        """Standardised ``(..., K, C)`` to physical units."""
+        return self.data.center + self.data.scale[:, None] * theta
+
+    def _flat(self, name: str) -> np.ndarray:
+        a = self.draws.draws[name]
+        return a.reshape((-1,) + a.shape[2:])
+
+    def unit_values(self, relative: bool = False) -> np.ndarray:
+        """Each unit's quantities at its campaign, ``(S, U, K, C)``: absolute (the sphere's scale
+        error folded in), or with ``relative`` the gain against that campaign's sphere reading
+        (what the unit's own data measure; the units' stage-one values are on this scale)."""
+        theta = self._flat("theta_observed" if relative else "theta")  # (S, K, U, C)
+        return self._physical(np.transpose(theta, (0, 2, 1, 3)))
+
+    def years(self, date) -> float:
+        """A date as years since the fleet's first campaign."""
+        if self.origin is None:
+            return 0.0
+        return float((pd.Timestamp(date) - self.origin).total_seconds() / 86400.0 / DAYS_PER_YEAR)
+
+    def camera_index(self, camera: str) -> int:
+        if camera not in self.cameras:
+            raise SpecError(f"camera '{camera}' is not in this fleet; its cameras are {', '.join(self.cameras)}")
+        return self.cameras.index(camera)
+
+    def at(self, camera: str | None, date=None, seed: int = 0) -> np.ndarray:
+        """Draws ``(S, K, C)`` of a camera's quantities at ``date`` (default: its last campaign).
+
+        ``camera=None``: a camera of the type that was never measured (population predictive).
+        Between and after campaigns the random walk adds ``walk_sd^2 |t - t_nearest|``.
+        """
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 0xF1EE7]))
+        level = self._level(camera, rng)  # (S, K, C)
+        if not self.plan.drift:
+            return self._physical(level)
+        units = np.flatnonzero(self.data.camera == self.camera_index(camera)) if camera is not None else None
+        if date is None:
+            if units is None:
+                raise SpecError("give a date for a camera that was never measured")
+            t = float(self.data.years[units[-1]])
+        else:
+            t = self.years(date)
+        if units is not None:
+            same = units[np.isclose(self.data.years[units], t)]
+            if len(same):  # a measured campaign: that unit's own values
+                return self._physical(self._flat("theta")[:, :, same[-1], :])
+        rate = self._rate(camera, rng)  # (S, 2)
+        drift = rate * (t - self.data.t_mean)
+        n = drift.shape[0]
+        if self.plan.walk and units is not None:
+            nearest = units[np.argmin(np.abs(self.data.years[units] - t))]
+            gap = abs(t - self.data.years[nearest])
+            step = self._flat("walk_sd") * np.sqrt(gap) * rng.standard_normal(drift.shape)
+            drift = drift + self._flat("walk")[:, :, nearest] + step
+        if self.plan.jitter:  # that date's own state of the camera
+            drift = drift + self._flat("jitter_sd") * rng.standard_normal((n, 2))
+        if self.plan.n_campaigns:  # and of the fleet
+            drift[:, 0] += self.data.campaign_sd * rng.standard_normal(n)
+        level = level.copy()
+        level[:, :2, :] += drift[:, :, None]
+        return self._physical(level)
+
+    def _level(self, camera: str | None, rng: np.random.Generator) -> np.ndarray:
+        if camera is not None:
+            return self._flat("camera_level")[:, :, self.camera_index(camera), :].copy()
+        if self.plan.pooling == "none":
+            raise SpecError("a fleet fitted without pooling has no population to predict an unmeasured camera from")
+        mu = self._flat("mu")  # (S, K, C)
+        if self.plan.pooling == "complete":
+            return mu.copy()
+        s, k, c = mu.shape
+        a = self._flat("sigma_camera")[:, :, None] * rng.standard_normal((s, k, 1))
+        b = self._flat("sigma_channel")[:, :, None] * rng.standard_normal((s, k, c))
+        return mu + a + b
+
+    def _rate(self, camera: str | None, rng: np.random.Generator) -> np.ndarray:
+        if camera is not None and "rate" in self.draws.draws:
+            return self._flat("rate")[:, :, self.camera_index(camera)]
+        rho = self._flat("rate_mean")
+        if self.plan.pooling == "partial":
+            return rho + self._flat("rate_sd") * rng.standard_normal(rho.shape)
+        return rho
+
+    def gain_drift(self, camera: str, date, since=None, seed: int = 0) -> np.ndarray:
+        """Draws ``(S,)`` of the relative gain change ``gain(date) / gain(since) - 1``
+        (``since``: the camera's last campaign)."""
+        if not self.plan.drift:
+            raise SpecError("the fleet has one campaign date: drift is not modelled (add campaigns)")
+        m = self.camera_index(camera)
+        units = np.flatnonzero(self.data.camera == m)
+        t1 = self.years(date)
+        t0 = float(self.data.years[units[-1]]) if since is None else self.years(since)
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 0xD41F7]))
+        rate = self._flat("rate")[:, 0, m] if "rate" in self.draws.draws else self._flat("rate_mean")[:, 0]
+        change = rate * (t1 - t0)
+        if self.plan.walk:
+            change = change + self._flat("walk_sd")[:, 0] * np.sqrt(abs(t1 - t0)) * rng.standard_normal(change.shape)
+        if self.plan.jitter:  # the date's own state against the last campaign's (known from its data)
+            last = self._flat("jitter")[:, 0, units[-1]] if since is None else 0.0
+            change = change + self._flat("jitter_sd")[:, 0] * rng.standard_normal(change.shape) - last
+        if self.plan.n_campaigns:
+            last = self._flat("campaign_state")[:, self.data.campaign[units[-1]]] if since is None else 0.0
+            change = change + self.data.campaign_sd * rng.standard_normal(change.shape) - last
+        return np.expm1(change * self.data.scale[0])
+
+    def drift_probability(self, camera: str, date, percent: float, since=None, seed: int = 0) -> float:
+        """``P(|gain(date) / gain(since) - 1| > percent / 100)`` (``since``: the last campaign)."""
+        if percent <= 0:
+            raise SpecError(f"drift threshold {percent} %: expected a positive percentage")
+        return float(np.mean(np.abs(self.gain_drift(camera, date, since, seed)) > percent / 100.0))
+
+    def recalibration_date(self, camera: str, percent: float, probability: float = 0.05, horizon_years: float = 10.0):
+        """The first date (monthly steps) at which ``drift_probability`` exceeds ``probability``;
+        None if not within ``horizon_years`` of the last campaign."""
+        m = self.camera_index(camera)
+        units = np.flatnonzero(self.data.camera == m)
+        last = self.origin + pd.Timedelta(days=float(self.data.years[units[-1]]) * DAYS_PER_YEAR)
+        for month in range(1, int(12 * horizon_years) + 1):
+            date = last + pd.DateOffset(months=month)
+            if self.drift_probability(camera, date, percent) > probability:
+                return date.normalize()
+        return None
+
+    # ------------------------------------------------------------ tables
+    def summary(self) -> pd.DataFrame:
+        """Per unit and channel: the pooled gain and offset (absolute) beside the unit fitted alone
+        (relative to its sphere reading; its absolute interval adds the sphere's ~3 %)."""
+        vals = self.unit_values()  # (S, U, K, C)
+        rows = []
+        for u, unit in self.units.iterrows():
+            for c, ch in enumerate(self.channels):
+                row = {"camera": unit["camera"], "campaign": unit["campaign"], "channel": ch}
+                for k, kind in enumerate(self.kinds):
+                    v = vals[:, u, k, c]
+                    if kind == "log_gain":
+                        v = np.exp(v)
+                        name = "gain"
+                        alone = np.exp(self.unit_mean[u, k, c])
+                        alone_sd = alone * np.sqrt(
+                            self.unit_cov[u, k * len(self.channels) + c, k * len(self.channels) + c]
+                        )
+                    else:
+                        name = kind
+                        alone = self.unit_mean[u, k, c]
+                        alone_sd = np.sqrt(self.unit_cov[u, k * len(self.channels) + c, k * len(self.channels) + c])
+                    lo, med, hi = np.quantile(v, [0.025, 0.5, 0.975])
+                    row |= {
+                        f"{name}": float(med),
+                        f"{name}_lo": float(lo),
+                        f"{name}_hi": float(hi),
+                        f"{name}_alone": float(alone),
+                        f"{name}_alone_sd": float(alone_sd),
+                    }
+                rows.append(row)
+        return pd.DataFrame(rows)
+
+    def hyperparameters(self) -> pd.DataFrame:
+        """The fleet's population: per quantity kind, mean, spreads, drift rate, walk (physical units)."""
+        rows = []
+        scale = self.data.scale
+        d = self.draws.draws
+        for k, kind in enumerate(self.kinds):
+            entries = {}
+            if "sigma_camera" in d:
+                entries["camera spread"] = self._flat("sigma_camera")[:, k] * scale[k]
+                entries["channel spread"] = self._flat("sigma_channel")[:, k] * scale[k]
+            if k < 2 and "rate_mean" in d:
+                entries["drift rate mean (per year)"] = self._flat("rate_mean")[:, k] * scale[k]
+                if "rate_sd" in d:
+                    entries["drift rate spread (per year)"] = self._flat("rate_sd")[:, k] * scale[k]
+                if "walk_sd" in d:
+                    entries["random walk (per sqrt year)"] = self._flat("walk_sd")[:, k] * scale[k]
+                if "jitter_sd" in d:
+                    entries["campaign jitter"] = self._flat("jitter_sd")[:, k] * scale[k]
+            if "excess" in d:
+                entries["interval inflation sqrt(kappa)"] = np.sqrt(self._flat("excess")[:, k])
+            for name, v in entries.items():
+                lo, med, hi = np.quantile(v, [0.025, 0.5, 0.975])
+                rows.append({"quantity": kind, "parameter": name, "median": med, "q2.5": lo, "q97.5": hi})
+        if "sphere_log_scale" in d:
+            s = self._flat("sphere_log_scale") * scale[0]
+            for j in range(s.shape[1]):
+                lo, med, hi = np.quantile(s[:, j], [0.025, 0.5, 0.975])
+                rows.append(
+                    {"quantity": "log_gain", "parameter": f"sphere scale {j}", "median": med, "q2.5": lo, "q97.5": hi}
+                )
+        return pd.DataFrame(rows)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary: verdict, diagnostics, structure, population."""
+        return {
+            "status": "ok" if self.ok else "FAILED",
+            "problems": self.problems,
+            "warnings": self.warnings,
+            "seed": self.seed,
+            "model": self.spec.name,
+            "stage_one_backend": "" if self.fits is None else self.fits.backend,
+            "pooling": self.plan.pooling,
+            "drift": self.plan.drift,
+            "walk": self.plan.walk,
+            "cameras": list(self.cameras),
+            "channels": list(self.channels),
+            "quantities": list(self.kinds),
+            "origin": None if self.origin is None else self.origin.date().isoformat(),
+            "diagnostics": self.draws.diagnostics,
+            "sampled_scales": self.plan.sampled(),
+            "hyperparameters": self.hyperparameters().to_dict(orient="records"),
+        }
+
+    # ----------------------------------------------------------- storage
+    def save(self, out_dir: str | os.PathLike) -> Path:
+        """Write the fleet directory (replacing ``out_dir`` whole): ``fleet.nc`` (draws and the
+        stage-one summaries), ``summary.csv``, ``hyperparameters.csv``, ``units.csv``,
+        ``summary.json``, and each camera's latest stage-one fit under ``cameras/``."""
+        from ..io import staged_directory, write_json_atomic
+
+        with staged_directory(out_dir, kind="fleet") as stage:
+            self._dataset().to_netcdf(stage(FLEET_FILE), engine="h5netcdf")
+            self.summary().to_csv(stage("summary.csv"), index=False, float_format="%.8g")
+            self.hyperparameters().to_csv(stage("hyperparameters.csv"), index=False, float_format="%.8g")
+            self.units.to_csv(stage("units.csv"), index=False, float_format="%.8g")
+            write_json_atomic(stage("summary.json"), self.to_dict())
+            if self.fits is not None:
+                import warnings
+
+                from ..errors import FitFailedWarning
+
+                for camera in self.cameras:
+                    u = int(np.flatnonzero(self.units["camera"].to_numpy() == camera)[-1])
+                    with warnings.catch_warnings():  # the unit's verdict is in units.csv and the fleet's warnings
+                        warnings.simplefilter("ignore", FitFailedWarning)
+                        self.fits.fit(u).save(stage(f"cameras/{_safe(camera)}"))
+        return Path(out_dir)
+
+    def _dataset(self):
+        import xarray as xr
+
+        ds = xr.Dataset()
+        for name, v in self.draws.draws.items():
+            ds[name] = (("chain", "draw") + tuple(f"{name}_dim{i}" for i in range(v.ndim - 2)), v)
+        ds["log_likelihood"] = (("chain", "draw", "unit"), self.draws.log_likelihood)
+        ds["unit_mean"] = (("unit", "kind", "channel"), self.unit_mean)
+        ds["unit_cov"] = (("unit", "q1", "q2"), self.unit_cov)
+        for name in ("camera", "sphere", "years", "walk_units", "walk_dt", "walk_slot", "unit_slot", "campaign"):
+            ds[f"data_{name}"] = ((f"data_{name}_dim",), np.asarray(getattr(self.data, name)))
+        ds["data_center"] = (("kind", "channel"), self.data.center)
+        ds["data_scale"] = (("kind",), self.data.scale)
+        ds.attrs = {
+            "spec_toml": self.spec.to_toml(),
+            "plan": json.dumps(self.plan.__dict__),
+            "diagnostics": json.dumps(self.draws.diagnostics),
+            "kinds": json.dumps(list(self.kinds)),
+            "channels": json.dumps(list(self.channels)),
+            "cameras": json.dumps(list(self.cameras)),
+            "origin": "" if self.origin is None else self.origin.isoformat(),
+            "units": self.units.to_json(orient="records"),
+            "seed": self.seed,
+            "t_mean": self.data.t_mean,
+            "sphere_sd": self.data.sphere_sd,
+            "campaign_sd": self.data.campaign_sd,
+        }
+        return ds
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> FleetFit:
+        """From a fleet directory written by :meth:`save` (or its ``fleet.nc``)."""
+        import io
+        import tomllib
+
+        import xarray as xr
+
+        path = Path(path)
+        file = path / FLEET_FILE if path.is_dir() else path
+        if not file.is_file():
+            raise PosteriorError(f"no fleet posterior at {file}; run `bayescal fleet TABLE --out DIR` first")
+        try:
+            ds = xr.load_dataset(file, engine="h5netcdf")
+            a = ds.attrs
+            spec = ModelSpec.from_dict(tomllib.loads(a["spec_toml"]), source=str(file))
+            plan = Plan(**json.loads(a["plan"]))
+            units = pd.read_json(io.StringIO(a["units"]), orient="records", dtype={"campaign": str})
+        except PosteriorError:
+            raise
+        except Exception as exc:  # netCDF/HDF5 and JSON raise many types for foreign or truncated files
+            raise PosteriorError(
+                f"{file} is not a fleet posterior written by bayescal ({type(exc).__name__}: {exc})"
+            ) from None
+        units["campaign"] = units["campaign"].where(units["campaign"].notna() & (units["campaign"] != "None"), None)
+        draws = {k: np.asarray(ds[k]) for k in ds.data_vars if "chain" in ds[k].dims and k != "log_likelihood"}
+        years = np.asarray(ds["data_years"], dtype=float)
+        empty = np.zeros((0,))
+        data = FleetData(
+            y=np.zeros((plan.n_units, 0)),
+            chol=np.zeros((plan.n_units, 0, 0)),
+            camera=np.asarray(ds["data_camera"], dtype=int),
+            sphere=np.asarray(ds["data_sphere"], dtype=int),
+            t=years - float(a["t_mean"]),
+            years=years,
+            walk_units=np.asarray(ds["data_walk_units"], dtype=int),
+            walk_dt=np.asarray(ds["data_walk_dt"], dtype=float),
+            walk_slot=np.asarray(ds["data_walk_slot"], dtype=int),
+            unit_slot=np.asarray(ds["data_unit_slot"], dtype=int),
+            shared_chol=empty,
+            campaign=np.asarray(ds["data_campaign"], dtype=int),
+            campaign_sd=float(a["campaign_sd"]),
+            sphere_sd=float(a["sphere_sd"]),
+            center=np.asarray(ds["data_center"]),
+            scale=np.asarray(ds["data_scale"]),
+            t_mean=float(a["t_mean"]),
+            g_gg=empty,
+            g_gm=empty,
+            g_mm=empty,
+            b_g=empty,
+            b_m=empty,
+            prior_var_g=empty,
+            active=empty,
+            yy=empty,
+            n_rows=empty,
+        )
+        return cls(
+            spec=spec,
+            kinds=tuple(json.loads(a["kinds"])),
+            channels=tuple(json.loads(a["channels"])),
+            cameras=tuple(json.loads(a["cameras"])),
+            units=units,
+            data=data,
+            plan=plan,
+            draws=FleetDraws(draws, np.asarray(ds["log_likelihood"]), json.loads(a["diagnostics"])),
+            origin=pd.Timestamp(a["origin"]) if a["origin"] else None,
+            fits=None,
+            seed=int(a["seed"]),
+            unit_mean=np.asarray(ds["unit_mean"]),
+            unit_cov=np.asarray(ds["unit_cov"]),
+        )
+
+
+def fit_fleet(
+    fleet: FleetTable,
+    spec: ModelSpec,
+    backend: str = "laplace",
+    *,
+    seed: int = 0,
+    progress: Callable[[int], None] | None = None,
+    stage: Callable[[str], None] | None = None,
+    fits: UnitFits | None = None,
+) -> FleetFit:
+    """Fit a fleet: every unit alone (``backend``), then the hierarchy by NUTS.
+
+    Parameters
+    ----------
+    fleet : FleetTable
+        From :func:`~bayescal.fleet.units.load_fleet_table`.
+    spec : ModelSpec
+        The channel-level model of one unit and the ``[fleet]`` section.
+    backend : {"laplace", "nuts"}
+        Stage one's inference.
+    seed : int
+        Unit ``u`` is fitted with ``seed + u``; the hierarchy with ``seed``.
+    fits : UnitFits, optional
+        Reuse stage one (e.g. to compare poolings).
+    """
+    stage = stage or (lambda message: None)
+    if fits is None:
+        stage(f"stage one: fitting {len(fleet.units)} units ({len(fleet.cameras)} cameras) alone")
+        fits = fit_units(fleet, spec, backend, seed=seed, progress=progress)
+    stage(f"stage two: the fleet hierarchy ({spec.fleet.pooling} pooling) by NUTS")
+    data, plan = fleet_data(fits, spec.fleet, spec.sphere.common_rel)
+    draws = sample_fleet(data, plan, spec.fleet, seed=seed)
+    units = fits.diagnostics.copy()
+    units.insert(2, "years", data.years)
+    for k, kind in enumerate(fits.kinds):
+        for c, ch in enumerate(fits.channels):
+            units[f"{kind}_{ch}"] = fits.mean[:, k, c]
+            i = k * len(fits.channels) + c
+            units[f"sd_{kind}_{ch}"] = np.sqrt(fits.cov[:, i, i])
+    return FleetFit(
+        spec=spec,
+        kinds=fits.kinds,
+        channels=fits.channels,
+        cameras=fleet.cameras,
+        units=units,
+        data=data,
+        plan=plan,
+        draws=draws,
+        origin=fleet.origin,
+        fits=fits,
+        seed=seed,
+        unit_mean=fits.mean,
+        unit_cov=fits.cov,
+    )
+
+
+def compare_pooling(fleet: FleetTable, spec: ModelSpec, fits: UnitFits, seed: int = 0) -> pd.DataFrame:
+    """No, partial and complete pooling compared by PSIS leave-one-unit-out (stage one shared).
+
+    Columns: ``elpd_loo``, ``se``, ``elpd_diff`` (minus the best), ``p_loo``, ``n_high_k``,
+    ``divergences``; one row per pooling, best first.
+    """
+    rows = {}
+    for pooling in ("none", "partial", "complete"):
+        s = spec.replace(fleet={"pooling": pooling})
+        fit = fit_fleet(fleet, s, seed=seed, fits=fits)
+        loo = loo_of(fit.draws)
+        rows[pooling] = {k: v for k, v in loo.items() if k != "pointwise"} | {
+            "divergences": fit.draws.diagnostics["divergences"],
+            "_pointwise": loo["pointwise"],
+        }
+    best = max(rows, key=lambda k: rows[k]["elpd_loo"])
+    for r in rows.values():
+        diff = r["_pointwise"] - rows[best]["_pointwise"]
+        r["elpd_diff"] = float(diff.sum())
+        r["dse"] = float(np.sqrt(len(diff) * np.var(diff)))
+    table = pd.DataFrame({k: {c: v for c, v in r.items() if c != "_pointwise"} for k, r in rows.items()}).T
+    return table.sort_values("elpd_loo", ascending=False)[
+        ["elpd_loo", "se", "elpd_diff", "dse", "p_loo", "n_high_k", "divergences"]
+    ]
+
+
+def _safe(name: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)

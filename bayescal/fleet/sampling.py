@@ -1,0 +1,239 @@
+"""Sampling the fleet hierarchy: NUTS on the scales, exact Gaussian draws of the rest.
+
+NUTS samples only the hierarchy's scales on their marginal likelihood
+(:func:`.model.log_marginal`); each draw of the scales is then completed by one
+draw of every other quantity from its Gaussian conditional.  The programs are
+compiled once per model structure (:class:`.model.Plan` and array shapes) with the
+data as arguments, and chains run vectorised.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from .._config import enable_numerics
+from ..spec import FleetSpec
+from .model import FleetData, Plan, conditional_draws, log_marginal
+
+__all__ = ["sample_fleet", "FleetDraws", "loo_of", "unit_log_likelihood"]
+
+
+@dataclass(frozen=True, eq=False)
+class FleetDraws:
+    """Posterior draws of the hierarchy (standardised units), ``(chain, draw, ...)``.
+
+    ``diagnostics``: ``divergences``, ``max_rhat``, ``min_ess_bulk``, ``min_ess_tail``
+    (over the sampled scales and every unit's quantities).
+    """
+
+    draws: dict[str, np.ndarray]
+    log_likelihood: np.ndarray  # (chain, draw, unit)
+    diagnostics: dict
+
+
+#: threads that run chains side by side (XLA releases the GIL while a chain runs)
+THREADS = 2
+
+
+def _priors(plan: Plan) -> dict[str, float]:
+    return {
+        "sigma_camera": plan.spread_prior,
+        "sigma_channel": plan.spread_prior,
+        "rate_sd": plan.rate_prior,
+        "walk_sd": plan.walk_prior,
+        "jitter_sd": plan.jitter_prior,
+        "excess": plan.excess_prior,
+    }
+
+
+def _unpack(plan: Plan, u, xp=np) -> dict:
+    """Unconstrained ``u`` (log of each scale; of ``kappa - 1`` for the excess) to the scales."""
+    out, i = {}, 0
+    for name, size in plan.sampled().items():
+        v = xp.exp(u[..., i : i + size])
+        out[name] = 1.0 + v if name == "excess" else v
+        i += size
+    return out
+
+
+@lru_cache(maxsize=16)
+def _chain_program(plan: Plan, warmup: int, draws: int, target: float):
+    """``run(key, u0, arrays)``: one chain (init, warmup, draws) compiled once per structure."""
+    import jax
+    import jax.numpy as jnp
+    from jax.scipy.stats import norm
+    from numpyro.infer.hmc import hmc
+
+    priors = _priors(plan)
+    sizes = list(plan.sampled().items())
+
+    def potential(u, arrays):
+        lp, i = 0.0, 0
+        for name, size in sizes:  # HalfNormal(prior) on each scale (on kappa - 1), with the log Jacobian
+            v = u[i : i + size]
+            lp = lp + jnp.sum(norm.logpdf(jnp.exp(v), 0.0, priors[name]) + v)
+            i += size
+        return -(lp + log_marginal(plan, _unpack(plan, u, jnp), arrays))
+
+    def chain(key, u0, arrays):
+        init_kernel, sample_kernel = hmc(potential_fn=lambda u: potential(u, arrays), algo="NUTS")
+        state = init_kernel(u0, num_warmup=warmup, target_accept_prob=target, rng_key=key)
+        state, _ = jax.lax.scan(lambda st, _: (sample_kernel(st), None), state, None, length=warmup)
+
+        def draw(st, _):
+            st = sample_kernel(st)
+            return st, (st.z, st.diverging)
+
+        _, out = jax.lax.scan(draw, state, None, length=draws)
+        return out
+
+    return jax.jit(chain)
+
+
+def _run_chains(plan: Plan, spec: FleetSpec, args: dict, seed: int) -> tuple[np.ndarray, int]:
+    """Every chain on a thread pool; unconstrained draws ``(chain, draw, dim)``."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import jax
+
+    run = _chain_program(plan, spec.warmup, spec.draws, spec.target_accept)
+    dim = sum(plan.sampled().values())
+    k_init, k_chain = jax.random.split(jax.random.PRNGKey(seed))
+    u0 = np.log(0.5) + np.asarray(jax.random.uniform(k_init, (spec.chains, dim), minval=-0.5, maxval=0.5))
+    keys = jax.random.split(k_chain, spec.chains)
+    arrays = {k: jax.numpy.asarray(v) for k, v in args.items()}
+    with ThreadPoolExecutor(max(1, min(THREADS, spec.chains))) as pool:
+        outs = list(pool.map(lambda c: jax.device_get(run(keys[c], u0[c], arrays)), range(spec.chains)))
+    z = np.stack([np.asarray(o[0]) for o in outs])
+    divergences = int(sum(np.sum(o[1]) for o in outs))
+    return z, divergences
+
+
+def sample_fleet(data: FleetData, plan: Plan, spec: FleetSpec, seed: int = 0) -> FleetDraws:
+    """Run NUTS on the scales, complete every draw, and judge the chains (R-hat, ESS, divergences)."""
+    enable_numerics()
+
+    args = data.arrays()
+    chains, n = spec.chains, spec.draws
+    sampled = plan.sampled()
+    if sampled:
+        z, divergences = _run_chains(plan, spec, args, seed)
+        hyper = _unpack(plan, z.reshape(chains * n, -1))
+    else:  # nothing to sample: the conditional draws are the posterior
+        hyper = {}
+        divergences = 0
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0xF1EE7]))
+    if not hyper:
+        g, cam = zip(*(conditional_draws(plan, {}, args, rng) for _ in range(chains * n)), strict=True)
+        g, cam = np.concatenate(g), np.concatenate(cam)
+    else:
+        g, cam = conditional_draws(plan, hyper, args, rng)
+    draws = {k: v.reshape(chains, n, -1) for k, v in hyper.items()}
+    draws |= {
+        k: v.reshape((chains, n) + v.shape[1:]) for k, v in _named(plan, data, np.asarray(g), np.asarray(cam)).items()
+    }
+    kappa = hyper.get("excess", np.ones((chains * n, plan.n_kinds)))
+    ll = unit_log_likelihood(
+        data,
+        draws["unit_reported" if plan.shared else "theta_observed"].reshape(
+            (chains * n,) + draws["theta_observed"].shape[2:]
+        ),
+        kappa,
+    )
+    diagnostics = {"divergences": divergences} | _convergence(draws, sampled, chains)
+    return FleetDraws(draws, ll.reshape(chains, n, -1), diagnostics)
+
+
+def _named(plan: Plan, data: FleetData, g: np.ndarray, cam: np.ndarray) -> dict[str, np.ndarray]:
+    """The latents by name: ``mu (S, K, C)``, ``camera_level (S, K, M, C)``, ``rate_mean (S, 2)``,
+    ``rate (S, 2, M)``, ``walk (S, 2, U)``, ``sphere_log_scale (S, J)``, ``theta`` and
+    ``theta_observed (S, K, U, C)`` (the sphere's factor added to the log gain)."""
+    c_n = plan.n_channels
+    mu = g[:, :, :c_n]
+    level = mu[:, :, None, :] + cam[:, :, :, :1] + cam[:, :, :, 1 : 1 + c_n]  # (S, K, M, C)
+    out = {"mu": mu, "camera_level": level}
+    theta = level[:, :, data.camera, :].copy()  # (S, K, U, C)
+    if plan.drift:
+        rate = g[:, :2, c_n, None] + cam[:, :2, :, 1 + c_n]  # (S, 2, M)
+        out["rate_mean"] = g[:, :2, c_n]
+        out["rate"] = rate
+        drift = rate[:, :, data.camera] * data.t[None, None, :]
+        if plan.walk:
+            walk = np.zeros((g.shape[0], 2, plan.n_units))
+            for j, v in enumerate(data.walk_units):
+                m = data.camera[v]
+                step = cam[:, :2, m, 2 + c_n + data.walk_slot[j]] * np.sqrt(data.walk_dt[j])
+                later = np.flatnonzero((data.camera == m) & (data.years >= data.years[v]))
+                walk[:, :, later] += step[:, :, None]
+            out["walk"] = walk
+            drift = drift + walk
+        if plan.jitter:
+            jitter = np.stack(
+                [cam[:, :2, data.camera[u], plan.jitter_base + data.unit_slot[u]] for u in range(plan.n_units)], axis=-1
+            )
+            out["jitter"] = jitter  # (S, 2, U)
+            drift = drift + jitter
+        theta[:, :2] += drift[..., None]
+    sphere = g[:, 0, c_n + 1 : c_n + 1 + plan.n_spheres]
+    out["sphere_log_scale"] = sphere
+    if plan.n_campaigns:  # the fleet's state per campaign: part of every camera's true gain
+        state = g[:, 0, c_n + 1 + plan.n_spheres :]
+        out["campaign_state"] = state
+        theta[:, 0] += state[:, data.campaign][..., None]
+    if plan.shared:  # the camera's repeating error: not the camera, but in what its units report
+        out["shared_error"] = np.einsum("kmcd,skmd->skmc", data.shared_chol, cam[:, :, :, plan.shared_base :])
+    out["theta"] = theta
+    observed = theta.copy()
+    observed[:, 0] += sphere[:, data.sphere][..., None]
+    out["theta_observed"] = observed
+    if plan.shared:
+        out["unit_reported"] = observed + out["shared_error"][:, :, data.camera, :]
+    return out
+
+
+def unit_log_likelihood(data: FleetData, theta_observed: np.ndarray, kappa: np.ndarray) -> np.ndarray:
+    """``log N(y_u | theta_u, kappa Sigma_u)`` per draw and unit, ``(S, U)``."""
+    s, k, u, c = theta_observed.shape
+    resid = data.y[None] - np.transpose(theta_observed, (0, 2, 1, 3)).reshape(s, u, k * c)
+    root = np.sqrt(np.repeat(kappa, c, axis=1))  # (S, KC)
+    inv_l = np.linalg.inv(data.chol)  # (U, KC, KC)
+    z = np.einsum("uqr,sur->suq", inv_l, resid / root[:, None, :])
+    logdet = (
+        np.sum(np.log(np.diagonal(data.chol, axis1=1, axis2=2)), axis=1)[None] + np.sum(np.log(root), axis=1)[:, None]
+    )
+    return -0.5 * np.sum(z**2, axis=2) - logdet - 0.5 * k * c * np.log(2 * np.pi)
+
+
+def _convergence(draws: dict, sampled: dict, chains: int) -> dict:
+    import arviz as az
+    import xarray as xr
+
+    names = list(sampled) + ["theta"]
+    ds = xr.Dataset({k: (("chain", "draw", f"{k}_i"), draws[k].reshape(draws[k].shape[:2] + (-1,))) for k in names})
+    rhat = (
+        float(np.nanmax([np.nanmax(np.asarray(v)) for v in az.rhat(ds).data_vars.values()]))
+        if chains > 1
+        else float("nan")
+    )
+    bulk = float(np.nanmin([np.nanmin(np.asarray(v)) for v in az.ess(ds, method="bulk").data_vars.values()]))
+    tail = float(np.nanmin([np.nanmin(np.asarray(v)) for v in az.ess(ds, method="tail").data_vars.values()]))
+    return {"max_rhat": rhat, "min_ess_bulk": bulk, "min_ess_tail": tail}
+
+
+def loo_of(draws: FleetDraws) -> dict:
+    """PSIS leave-one-unit-out: ``elpd_loo``, its ``se``, ``p_loo`` and units with Pareto k > 0.7."""
+    import arviz as az
+
+    ll = draws.log_likelihood
+    tree = az.from_dict({"posterior": {"dummy": np.zeros(ll.shape[:2])}, "log_likelihood": {"y": ll}})
+    loo = az.loo(tree, pointwise=True)
+    return {
+        "elpd_loo": float(loo.elpd),
+        "se": float(loo.se),
+        "p_loo": float(loo.p),
+        "n_high_k": int(np.sum(np.asarray(loo.pareto_k) > 0.7)),
+        "pointwise": np.asarray(loo.elpd_i),
+    }

@@ -1,0 +1,141 @@
+"""An independent fleet simulator: many cameras of one type, calibrated over several campaigns.
+
+Written apart from the model (it imports only numpy, pandas and the bench of
+:mod:`.bench`), in the terms a production line and a calibration lab would use,
+not the fleet model's parametrisation, and with its departures from it:
+
+- **production spread**: each camera's responsivity is the type's times a factor
+  drawn *uniformly* within +-``production_band`` (a tolerance band, not a Normal),
+  times a per-colour factor (log-normal, ``colour_spread``);
+- **ageing that settles**: responsivity falls as ``1 - loss (1 - exp(-t / settle_years))``
+  with each camera's ``loss`` uniform in ``loss_range``: curved, not the model's
+  straight trend in log gain; plus an independent per-campaign jitter
+  (``campaign_jitter``, not a random walk);
+- **offset creep**: each camera's dark offset moves by ``offset_creep_dn`` per year
+  (per-camera, uniform within +-50 %) from a per-camera start (Normal, ``offset_spread_dn``);
+- **nonlinearity spread**: the compression is the type's times a factor uniform in 0.7-1.3;
+- **one sphere per campaign**: its scale error (3 %) and lamp-level errors (0.5 %) are
+  shared by every camera measured in that campaign;
+- each camera's gain steps sit off their labels (``gain_step_error``) as in the bench.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pandas as pd
+
+from .bench import BenchCamera, Departures, simulate_bench
+
+__all__ = ["FleetDesign", "simulate_fleet"]
+
+
+@dataclass(frozen=True)
+class FleetDesign:
+    """A fleet and its calibration campaigns (defaults: a seed-000-type aerial camera).
+
+    ``levels_per_camera``: radiance levels each camera is swept over (every level by
+    default); ``brief``: cameras measured with only ``brief_levels`` levels (a unit that
+    came back from the field for a quick check); ``absent``: (camera, campaign) pairs not
+    measured.
+    """
+
+    n_cameras: int = 20
+    campaigns: tuple[str, ...] = ("2024-03-01", "2025-03-01", "2026-03-01")
+    production_band: float = 0.08
+    colour_spread: float = 0.02
+    loss_range: tuple[float, float] = (0.01, 0.06)
+    settle_years: float = 1.5
+    campaign_jitter: float = 0.002
+    offset_spread_dn: float = 4.0
+    offset_creep_dn: float = 1.5
+    compression_band: tuple[float, float] = (0.7, 1.3)
+    gain_step_error: float = 0.03
+    sphere_common_rel: float = 0.03
+    sphere_level_rel: float = 0.005
+    levels: tuple[float, ...] = (1.5, 3.0, 5.0279, 7.5, 10.0, 12.5, 15.0, 17.5, 21.559, 24.0, 27.0, 30.0)
+    brief: tuple[str, ...] = ()
+    brief_levels: tuple[int, ...] = (2, 6, 10)
+    absent: tuple[tuple[str, str], ...] = ()
+    n_frames: int = 20
+    n_pixels: int = 256
+    camera: BenchCamera = field(default_factory=BenchCamera)
+
+    def names(self) -> list[str]:
+        """Camera serial numbers."""
+        return [f"SN{i + 1:03d}" for i in range(self.n_cameras)]
+
+
+def simulate_fleet(design: FleetDesign | None = None, seed: int = 0) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """A fleet measurement table (``camera`` and ``campaign`` columns) and the truth per unit.
+
+    The truth has one row per (camera, campaign, channel): ``gain`` (true ``A1``, DN per
+    W m^-2 sr^-1 at the reference setting), ``offset`` (``A0``, DN), ``compression``
+    (``A2``), and the campaign's ``sphere_scale``.
+    """
+    d = design or FleetDesign()
+    rng = np.random.default_rng(seed)
+    base = replace(d.camera, n_frames=d.n_frames, n_pixels=d.n_pixels)
+    chans = base.channels
+    origin = pd.Timestamp(d.campaigns[0])
+    years = [(pd.Timestamp(c) - origin).days / 365.25 for c in d.campaigns]
+    sphere = [
+        (
+            float(np.exp(d.sphere_common_rel * rng.standard_normal())),
+            d.sphere_level_rel * rng.standard_normal(len(d.levels)),
+        )
+        for _ in d.campaigns
+    ]
+    frames, truth = [], []
+    for name in d.names():
+        band = 1.0 + rng.uniform(-d.production_band, d.production_band)
+        colour = {c: float(np.exp(d.colour_spread * rng.standard_normal())) for c in chans}
+        loss = rng.uniform(*d.loss_range)
+        comp = {c: rng.uniform(*d.compression_band) for c in chans}
+        offset0 = rng.normal(0.0, d.offset_spread_dn)
+        creep = d.offset_creep_dn * rng.uniform(0.5, 1.5)
+        level_idx = d.brief_levels if name in d.brief else tuple(range(len(d.levels)))
+        for j, campaign in enumerate(d.campaigns):
+            if (name, campaign) in d.absent:
+                continue
+            t = years[j]
+            age = 1.0 - loss * (1.0 - np.exp(-t / d.settle_years))
+            jitter = float(np.exp(d.campaign_jitter * rng.standard_normal()))
+            factor = {c: band * colour[c] * age * jitter for c in chans}
+            cam = replace(
+                base,
+                levels=tuple(d.levels[i] for i in level_idx),
+                responsivity={c: base.responsivity[c] * factor[c] for c in chans},
+                compression={c: base.compression[c] * comp[c] * factor[c] for c in chans},
+                channel_offset_dn={c: base.channel_offset_dn[c] + offset0 + creep * t for c in chans},
+                sweeps=tuple(
+                    (ex, gs, None if lv is None else tuple(i for i in lv if i < len(level_idx)))
+                    for ex, gs, lv in base.sweeps
+                ),
+            )
+            scale, level_err = sphere[j]
+            table, real = simulate_bench(
+                cam,
+                Departures(gain_step_error=d.gain_step_error),
+                seed=int(rng.integers(2**31)),
+                sphere_scale=scale,
+                level_errors=level_err[list(level_idx)],
+            )
+            table.insert(0, "campaign", campaign)
+            table.insert(0, "camera", name)
+            frames.append(table)
+            for c in chans:
+                a = real.true_coefficients(c)
+                truth.append(
+                    {
+                        "camera": name,
+                        "campaign": campaign,
+                        "channel": c,
+                        "gain": a[1],
+                        "offset": a[0],
+                        "compression": a[2],
+                        "sphere_scale": scale,
+                    }
+                )
+    return pd.concat(frames, ignore_index=True), pd.DataFrame(truth)
