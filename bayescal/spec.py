@@ -298,10 +298,12 @@ class FleetSpec:
     On the independent fleet simulator, 0 gave 95 % intervals of the offsets that covered
     0.83-0.93.
 
-    ``campaign_sd``: the fleet's common log-gain state in each campaign (Normal, this sd)
-    beside its straight-line drift: without it the line ties the sphere's per-campaign
-    errors together and a fleet that ages along a curve (settling) biased them (95 %
-    intervals of the absolute gain covered 0.83-0.86 on the independent simulator).
+    ``campaign_sd``: a common effect on every log gain measured in one campaign (Normal,
+    this sd) beside the sphere's: a fleet that does not age along the straight line (it
+    settles), or a bench that differs between campaigns beyond the sphere's scale. Without
+    it the line ties the sphere's per-campaign errors together and biased them (95 %
+    intervals of the absolute gain covered 0.83-0.86 on the independent simulator). It is
+    not extrapolated: the drift ahead is the cameras' trends, walk and jitter.
     """
 
     pooling: Literal["partial", "none", "complete"] = "partial"

@@ -13,7 +13,7 @@ quantity kind ``k`` (log gain, offset, nonlinearity terms) and channel ``c``::
     w[k, u] = w[k, u-1] + walk_sd[k] sqrt(t_u - t_{u-1}) z   a random walk per camera
     e[k, u] ~ Normal(0, jitter_sd[k])                        the unit's own state in that campaign
     sphere[j] ~ Normal(0, common_rel)                        the sphere's log scale error, per campaign
-    state[j] ~ Normal(0, campaign_sd)                        the fleet's own state in campaign j (log gain)
+    state[j] ~ Normal(0, campaign_sd)                        a common effect on the gains measured in campaign j
     y_u ~ MultivariateNormal(theta[:, u, :] (+ sphere), Sigma_u)
 
 Given the scales ``h = (sigma_camera, sigma_channel, rate_sd, walk_sd)`` everything
@@ -325,7 +325,7 @@ def _design(plan: Plan, camera, sphere, t, walk_units, walk_dt, walk_slot, unit_
                         h_m[k, u, c, plan.jitter_base + unit_slot[u]] = 1.0  # this campaign's own state
                 if k == 0:
                     h_g[k, u, c, c_n + 1 + sphere[u]] = 1.0
-                    if plan.n_campaigns:  # the fleet's state in that campaign (not a straight line)
+                    if plan.n_campaigns:  # common to that campaign's measurements (a fleet not on a straight line)
                         h_g[k, u, c, c_n + 1 + plan.n_spheres + campaign[u]] = 1.0
             if plan.shared:  # the camera's repeating error, correlated across channels as the units' are
                 h_m[k, u, :, plan.shared_base : plan.shared_base + c_n] = shared_chol[k, m]

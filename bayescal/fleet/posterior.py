@@ -178,8 +178,7 @@ class FleetFit:
             drift = drift + self._flat("walk")[:, :, nearest] + step
         if self.plan.jitter:  # that date's own state of the camera
             drift = drift + self._flat("jitter_sd") * rng.standard_normal((n, 2))
-        if self.plan.n_campaigns:  # and of the fleet
-            drift[:, 0] += self.data.campaign_sd * rng.standard_normal(n)
+
         level = level.copy()
         level[:, :2, :] += drift[:, :, None]
         return self._physical(level)
@@ -222,9 +221,7 @@ class FleetFit:
         if self.plan.jitter:  # the date's own state against the last campaign's (known from its data)
             last = self._flat("jitter")[:, 0, units[-1]] if since is None else 0.0
             change = change + self._flat("jitter_sd")[:, 0] * rng.standard_normal(change.shape) - last
-        if self.plan.n_campaigns:
-            last = self._flat("campaign_state")[:, self.data.campaign[units[-1]]] if since is None else 0.0
-            change = change + self.data.campaign_sd * rng.standard_normal(change.shape) - last
+
         return np.expm1(change * self.data.scale[0])
 
     def drift_probability(self, camera: str, date, percent: float, since=None, seed: int = 0) -> float:

@@ -179,15 +179,17 @@ def _named(plan: Plan, data: FleetData, g: np.ndarray, cam: np.ndarray) -> dict[
         theta[:, :2] += drift[..., None]
     sphere = g[:, 0, c_n + 1 : c_n + 1 + plan.n_spheres]
     out["sphere_log_scale"] = sphere
-    if plan.n_campaigns:  # the fleet's state per campaign: part of every camera's true gain
+    state = None
+    if plan.n_campaigns:  # a common effect on every gain measured in a campaign, not extrapolated
         state = g[:, 0, c_n + 1 + plan.n_spheres :]
         out["campaign_state"] = state
-        theta[:, 0] += state[:, data.campaign][..., None]
     if plan.shared:  # the camera's repeating error: not the camera, but in what its units report
         out["shared_error"] = np.einsum("kmcd,skmd->skmc", data.shared_chol, cam[:, :, :, plan.shared_base :])
     out["theta"] = theta
     observed = theta.copy()
     observed[:, 0] += sphere[:, data.sphere][..., None]
+    if state is not None:
+        observed[:, 0] += state[:, data.campaign][..., None]
     out["theta_observed"] = observed
     if plan.shared:
         out["unit_reported"] = observed + out["shared_error"][:, :, data.camera, :]
