@@ -188,10 +188,12 @@ def test_nonlinear_convergence_is_certified_not_assumed():
         "distinct stationary points"
         in nonlinear_lsq(NONLINEAR["Misra1b"], data[:, 1], data[:, 0], -100 * starts[0]).why
     )
-    for name in ("DanWood", "Eckerle4"):  # 1000 x the start: every restart lands where the Jacobian is singular
+    for name in ("DanWood", "Eckerle4"):  # 1000 x the start: the restarts end where the Jacobian is
+        # singular or short of a stationary point (which of the two depends on the platform's rounding)
         starts, cert, _, data = read_nonlinear(name)
         fit = nonlinear_lsq(NONLINEAR[name], data[:, 1], data[:, 0], starts[0] * 1000)
-        assert not fit.converged and "rank-deficient" in fit.why
+        assert not fit.converged
+        assert "rank-deficient" in fit.why or "not a stationary point" in fit.why, fit.why
         assert fit.sse > 10 * certified_sse(name, cert, data)
 
 
