@@ -284,14 +284,14 @@ def test_cli_simulate_fit_query_and_predict(tmp_path, capsys):
     assert main(["fleet-simulate", str(design), "--out", str(table), "--seed", "2"]) == 0
     out = tmp_path / "fit"
     code = main(["fleet", str(table), "--model", str(spec), "--out", str(out), "--quiet", "--report"])
-    assert code in (0, 3)
     assert (out / "fleet.nc").is_file() and (out / "fleet_report.html").stat().st_size > 10_000
     assert code == 0, capsys.readouterr().err
     cal = tmp_path / "cal"
     args = ["fleet-query", str(out), "--camera", "SN001", "--date", "2026-09-01", "--drift-percent", "3"]
     assert main([*args, "--calibration", str(cal)]) == 0
     printed = capsys.readouterr().out
-    assert "P(gain drifted by more than 3 %" in printed and "recalibrate" in printed or "risk stays" in printed
+    assert "P(gain drifted by more than 3 %" in printed
+    assert "recalibrate by" in printed or "risk stays below" in printed
     assert main(["predict", str(cal), "--channel", "G", "--exposure-s", "0.004", "--stimulus", "5"]) == 0
     assert main(["fleet-query", str(out), "--new-camera", "--date", "2026-09-01"]) == 0
     # bad input: exit 2 with the key named

@@ -38,14 +38,12 @@ from ..spec import FleetSpec
 from .stage1 import UnitFits
 from .units import to_years
 
-__all__ = ["FleetData", "Plan", "fleet_data", "log_marginal", "conditional_draws", "HYPER"]
+__all__ = ["FleetData", "Plan", "fleet_data", "log_marginal", "conditional_draws"]
 
 #: the prior sd of a camera's level without pooling (standardised units: effectively flat)
 UNPOOLED_SD = 30.0
 #: prior variance of a global term that a pooling leaves out (effectively fixed at 0)
 ABSENT_VAR = 1e-10
-#: the sampled scales, in order, and the kinds each has (K: every kind, 2: the drifting ones)
-HYPER = ("sigma_camera", "sigma_channel", "rate_sd", "walk_sd", "excess")
 
 
 @dataclass(frozen=True)
@@ -413,8 +411,8 @@ def _factor(plan, sc, kappa, arrays, xp):
     l_m = xp.linalg.cholesky(p_mm)
     p_gm = g_gm * sc[..., None, :]  # (..., K, M, G, B)
     bm_s = sc * arrays["b_m"] * w[..., None, None]
-    x_mg = _solve_chol(l_m, xp.swapaxes(p_gm, -1, -2), xp)  # (..., K, M, B, G)
-    x_b = _solve_chol(l_m, bm_s, xp)
+    x_mg = _solve_chol(l_m, xp.swapaxes(p_gm, -1, -2))  # (..., K, M, B, G)
+    x_b = _solve_chol(l_m, bm_s)
     schur = (
         arrays["g_gg"] * w[..., None, None]
         + _diag(1.0 / arrays["prior_var_g"], xp)
@@ -429,17 +427,11 @@ def _diag(v, xp):
     return v[..., :, None] * xp.eye(v.shape[-1])
 
 
-def _solve_chol(low, b, xp):
-    """``(L L')^-1 b`` for batched lower factors; ``b`` a vector or a matrix per factor."""
+def _solve_chol(low, b):
+    """``(L L')^-1 b`` for batched lower factors (NumPy); ``b`` a vector or a matrix per factor."""
     vector = b.ndim == low.ndim - 1
     rhs = b[..., None] if vector else b
-    if xp is np:
-        out = np.linalg.solve(np.swapaxes(low, -1, -2), np.linalg.solve(low, rhs))
-    else:
-        import jax.scipy.linalg as jsl
-
-        out = jsl.solve_triangular(low, rhs, lower=True)
-        out = jsl.solve_triangular(xp.swapaxes(low, -1, -2), out, lower=False)
+    out = np.linalg.solve(np.swapaxes(low, -1, -2), np.linalg.solve(low, rhs))
     return out[..., 0] if vector else out
 
 
@@ -455,10 +447,10 @@ def conditional_draws(plan: Plan, hyper: dict, arrays: dict, rng: np.random.Gene
     kappa = hyper["excess"] if "excess" in hyper else np.ones((s, plan.n_kinds))
     bm_s, x_b, l_m, l_s, b_g2 = _factor(plan, sc, kappa, arrays, np)
     z_g = rng.standard_normal(b_g2.shape)
-    g = _solve_chol(l_s, b_g2, np) + np.linalg.solve(np.swapaxes(l_s, -1, -2), z_g[..., None])[..., 0]
+    g = _solve_chol(l_s, b_g2) + np.linalg.solve(np.swapaxes(l_s, -1, -2), z_g[..., None])[..., 0]
     w = 1.0 / kappa
     p_gm = arrays["g_gm"] * w[:, :, None, None, None] * sc[..., None, :]
     rhs = bm_s - np.einsum("skmgb,skg->skmb", p_gm, g)
     z_m = rng.standard_normal(rhs.shape)
-    cam = _solve_chol(l_m, rhs, np) + np.linalg.solve(np.swapaxes(l_m, -1, -2), z_m[..., None])[..., 0]
+    cam = _solve_chol(l_m, rhs) + np.linalg.solve(np.swapaxes(l_m, -1, -2), z_m[..., None])[..., 0]
     return g, sc * cam
