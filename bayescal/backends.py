@@ -59,6 +59,7 @@ SHIPPED: dict[str, tuple[str, bool, str]] = {
     "nuts": ("bayescal.inference.samplers", True, "numpyro NUTS in Laplace-whitened coordinates"),
     "laplace": ("bayescal.inference.samplers", True, "Gaussian at the posterior mode (fast)"),
     "emcee": ("bayescal.inference.samplers", False, "emcee's ensemble sampler"),
+    "blackjax": ("bayescal.inference.blackjax_backend", False, "BlackJAX NUTS with window adaptation"),
 }
 
 REGISTRY: dict[str, Backend] = {}

@@ -321,7 +321,7 @@ class FleetSpec:
     campaign_sd: float = 0.02
     chains: int = 4
     draws: int = 600
-    warmup: int = 400
+    warmup: int = 300
     target_accept: float = 0.9
 
 

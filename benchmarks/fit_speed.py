@@ -1,5 +1,9 @@
 """Cold and warm wall time per backend on the seed 000 dataset, with the ratio to LSQ.
 
+The two NUTS implementations (numpyro's and BlackJAX's, on the same compiled potential
+in the same whitened coordinates) run side by side with their effective sample size
+per second (the smaller of bulk and tail ESS over every reported quantity).
+
 Run: ``python benchmarks/fit_speed.py [--repeats 3]``.
 
 *Cold* is a fresh Python process with the persistent compilation cache
@@ -8,7 +12,8 @@ a fresh process with the persistent cache warm.  *Warm* is a repeated
 ``fit()`` in one process (the compiled program is reused; the median of
 ``--repeats`` calls).  All times are for the full ``bayescal.fit`` call
 (model assembly, LSQ baseline, MAP, the backend, diagnostics, posterior
-tree).  Results go to ``benchmarks/results/fit_speed.{csv,md}``.
+tree).  Results go to ``benchmarks/results/fit_speed.{csv,md}`` (``--out`` another stem,
+``--backends lsq,nuts,blackjax`` a subset).
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
-BACKENDS = ("lsq", "laplace", "nuts", "emcee")
+BACKENDS = ("lsq", "laplace", "nuts", "blackjax", "emcee")
 
 CHILD = """
 import json, sys, time, warnings
@@ -61,7 +66,10 @@ def fresh_process(backend: str, cache: bool) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--backends", default=",".join(BACKENDS), help="comma-separated, lsq first (the ratio's base)")
+    parser.add_argument("--out", default="fit_speed", help="results stem under benchmarks/results")
     args = parser.parse_args()
+    chosen = [b.strip() for b in args.backends.split(",") if b.strip()]
 
     import warnings
 
@@ -71,7 +79,7 @@ def main() -> None:
     design = bc.load_design(ROOT / "models/seed000_design.toml")
     table = bc.simulate(spec, design, seed=0).table
     rows = []
-    for backend in BACKENDS:
+    for backend in chosen:
         cold = fresh_process(backend, cache=False)
         cached = fresh_process(backend, cache=True)
         warm, stages = [], {}
@@ -91,6 +99,7 @@ def main() -> None:
                 "cached_s": cached,
                 "warm_s": float(np.median(warm)),
                 "sampler_s": float(stages.get(backend, np.nan)),
+                "min_ess": _min_ess(result),
                 "ok": result.ok,
             }
         )
@@ -98,30 +107,40 @@ def main() -> None:
     lsq = rows[0]["warm_s"]
     for row in rows:
         row["warm_ratio_to_lsq"] = row["warm_s"] / lsq
-    write(rows, spec)
+        row["ess_per_s_warm"] = row["min_ess"] / row["warm_s"]
+    write(rows, spec, args.out)
 
 
-def write(rows: list[dict], spec) -> None:
+def _min_ess(result) -> float:
+    """The smaller of bulk and tail ESS (emcee: from its autocorrelation time; NaN without draws)."""
+    d = result.diagnostics
+    values = [getattr(d, k, None) for k in ("min_ess_bulk", "min_ess_tail")]
+    values = [float(v) for v in values if v is not None and np.isfinite(v)]
+    return min(values) if values and result.backend in ("nuts", "blackjax", "emcee") else float("nan")
+
+
+def write(rows: list[dict], spec, stem: str = "fit_speed") -> None:
     import pandas as pd
 
     RESULTS.mkdir(parents=True, exist_ok=True)
     df = pd.DataFrame(rows)
-    df.to_csv(RESULTS / "fit_speed.csv", index=False, float_format="%.4g")
+    df.to_csv(RESULTS / f"{stem}.csv", index=False, float_format="%.4g")
     inf = spec.inference
     lines = [
         f"Seed 000 dataset (192 rows, 3 channels); NUTS {inf.chains} chains x {inf.draws} draws "
         f"(+{inf.warmup} warmup); emcee {inf.emcee_steps} steps (+{inf.emcee_burn} burn); "
         f"{os.cpu_count()} CPU cores.",
         "",
-        "| backend | cold (no cache) s | fresh process, cached s | warm s | sampler only s | warm / lsq |",
-        "|---|---|---|---|---|---|",
+        "| backend | cold (no cache) s | fresh process, cached s | warm s | sampler only s | warm / lsq | min ESS "
+        "| ESS / s (warm) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
             f"| {r['backend']} | {r['cold_s']:.2f} | {r['cached_s']:.2f} | {r['warm_s']:.3f} | "
-            f"{r['sampler_s']:.3f} | {r['warm_ratio_to_lsq']:.0f} |"
+            f"{r['sampler_s']:.3f} | {r['warm_ratio_to_lsq']:.0f} | {r['min_ess']:.0f} | {r['ess_per_s_warm']:.0f} |"
         )
-    (RESULTS / "fit_speed.md").write_text("\n".join(lines) + "\n")
+    (RESULTS / f"{stem}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

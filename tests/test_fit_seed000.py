@@ -42,6 +42,7 @@ def test_laplace_matches_nuts(fits):
         assert np.all(np.abs(a.std(axis=0) - b.std(axis=0)) <= 0.1 * sd), name
 
 
+@pytest.mark.slow  # the default run checks emcee against a closed-form posterior (tests/test_laplace_closed_form.py)
 def test_emcee_matches_nuts(fits, seed000):
     sim, nuts, _ = fits
     spec, _ = seed000

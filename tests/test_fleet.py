@@ -7,16 +7,26 @@ The coverage of the fleet's intervals over 5-50 cameras and 3-12 levels is measu
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pandas as pd
 import pytest
 
 from bayescal import load_spec
 from bayescal.errors import TableError
-from bayescal.fleet.model import _design, block_scales, conditional_draws, fleet_data, log_marginal
+from bayescal.fleet.model import (
+    _integrated,
+    block_scales,
+    conditional_draws,
+    design_of,
+    fleet_data,
+    integrated_value,
+    log_marginal,
+)
 from bayescal.fleet.units import fleet_from_frame
 from bayescal.spec import FleetSpec
-from bayescal.validation.fleet import FleetDesign, simulate_fleet
+from bayescal.validation.fleet import SMALL_FLEET, FleetDesign, simulate_fleet
 
 from .conftest import MODELS
 
@@ -24,20 +34,13 @@ SPEC = MODELS / "fleet_seed000.toml"
 
 
 def _small_design(**kw) -> FleetDesign:
-    base = dict(
-        n_cameras=6,
-        campaigns=("2024-03-01", "2025-03-01", "2026-03-01"),
-        n_pixels=64,
-        n_frames=10,
-        brief=("SN006",),
-        absent=(("SN005", "2026-03-01"),),
-    )
-    return FleetDesign(**(base | kw))
+    return dataclasses.replace(SMALL_FLEET, **kw)
 
 
-def _spec(draws: int = 600):
-    """The shipped fleet spec (``draws`` per chain)."""
-    return load_spec(SPEC).replace(fleet={"draws": draws})
+def _spec(draws: int | None = None):
+    """The shipped fleet spec (``draws`` per chain: the default unless given)."""
+    spec = load_spec(SPEC)
+    return spec if draws is None else spec.replace(fleet={"draws": draws})
 
 
 @pytest.fixture(scope="module")
@@ -110,15 +113,9 @@ class _Fits:
         self.cov = (a @ np.swapaxes(a, 1, 2) + n_kinds * c * np.eye(n_kinds * c)) * np.outer(s, s) * 0.003
 
 
-def _h(plan, data):
-    """The design ``H`` of the fleet data (global and per-camera columns) and the active slots."""
-    fields = ("camera", "sphere", "t", "walk_units", "walk_dt", "walk_slot", "unit_slot", "shared_chol", "campaign")
-    return _design(plan, *(getattr(data, f) for f in fields))
-
-
 def _dense(plan, data, hyper):
     """``y ~ N(0, H V H' + kappa Sigma)`` built densely: the reference for the block algebra."""
-    h_g, h_m, active = _h(plan, data)
+    h_g, h_m, active = design_of(plan, data)
     sc = block_scales(plan, hyper)[:, None, :] * active  # (K, M, B)
     cov_u = data.chol @ np.swapaxes(data.chol, 1, 2)
     total = 0.0
@@ -164,6 +161,41 @@ def test_marginal_likelihood_matches_the_dense_gaussian(small_fleet):
     assert f2 - f1 == pytest.approx(d2 - d1, rel=1e-7, abs=1e-6)
 
 
+def test_marginal_gradient_matches_the_dense_gaussian(small_fleet):
+    """The closed-form gradient (posterior mean and covariance blocks, no reverse pass through
+    the factors) against central differences of the dense Gaussian, in the sampled coordinates."""
+    import jax
+    import jax.numpy as jnp
+
+    import bayescal
+    from bayescal.fleet.sampling import _unpack
+
+    bayescal.enable_numerics()
+    fleet = fleet_from_frame(_frame(small_fleet), source="small")
+    rng = np.random.default_rng(4)
+    data, plan = fleet_data(_Fits(fleet, 3, rng), FleetSpec(), 0.03)
+    arrays = {k: jnp.asarray(v) for k, v in data.arrays().items()}
+    dim = sum(plan.sampled().values())
+    u0 = np.log(0.6) + 0.4 * rng.standard_normal(dim)
+    grad = np.asarray(jax.grad(lambda u: log_marginal(plan, _unpack(plan, u, jnp), arrays))(jnp.asarray(u0)))
+    h = 1e-5
+    fd = np.array(
+        [
+            (_dense(plan, data, _unpack(plan, u0 + h * e)) - _dense(plan, data, _unpack(plan, u0 - h * e))) / (2 * h)
+            for e in np.eye(dim)
+        ]
+    )
+    # central differences of a ~1e3 log density: truncation ~h^2, rounding ~1e-13 / h
+    np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-6 * np.max(np.abs(fd)))
+    # and against reverse-mode differentiation through the factorisations (the path it replaces)
+    sc = jnp.asarray(rng.uniform(0.1, 2.0, data.active.shape)) * arrays["active"]
+    w = jnp.asarray(rng.uniform(0.3, 1.0, plan.n_kinds))
+    closed = jax.grad(_integrated(), argnums=(0, 1))(sc, w, arrays)
+    autodiff = jax.grad(lambda s, v: integrated_value(s, v, arrays)[0], argnums=(0, 1))(sc, w)
+    for a, b in zip(closed, autodiff, strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-8, atol=1e-10 * float(jnp.max(jnp.abs(b))))
+
+
 def test_conditional_draws_match_the_dense_posterior_mean(small_fleet):
     fleet = fleet_from_frame(_frame(small_fleet), source="small")
     rng = np.random.default_rng(1)
@@ -173,7 +205,7 @@ def test_conditional_draws_match_the_dense_posterior_mean(small_fleet):
     n = 4000
     g, cam = conditional_draws(plan, {k: np.repeat(v, n, axis=0) for k, v in hyper.items()}, data.arrays(), rng)
     # dense posterior of kind 0's latents: precision H' S^-1 H + V^-1
-    h_g, h_m, active = _h(plan, data)
+    h_g, h_m, active = design_of(plan, data)
     sc = block_scales(plan, {k: v[0] for k, v in hyper.items()})[:, None, :] * active
     c_n, k = plan.n_channels, 0
     cov_u = data.chol @ np.swapaxes(data.chol, 1, 2)
@@ -328,3 +360,35 @@ def test_select_compares_poolings_by_loo(tmp_path, capsys):
     rows = [line.split()[0] for line in out.splitlines()[2:5]]
     assert sorted(rows) == ["complete", "none", "partial"]
     assert rows[-1] == "complete"  # cameras 8 % apart are not one camera
+
+
+def test_refitting_the_same_reports_rebuilds_the_same_blocks(small_fleet):
+    """``with_units`` (what simulation-based calibration refits) rebuilds every data block of the
+    likelihood from the units' reports: the fleet's own reports give back the fleet's blocks."""
+    from bayescal.fleet.model import with_units
+
+    fleet = fleet_from_frame(_frame(small_fleet), source="small")
+    data, plan = fleet_data(_Fits(fleet, 3, np.random.default_rng(5)), FleetSpec(), 0.03)
+    again = with_units(plan, data, data.y.reshape(plan.n_units, plan.n_kinds, plan.n_channels))
+    for name in ("g_gg", "g_gm", "g_mm", "b_g", "b_m", "yy"):
+        a, b = getattr(data, name), getattr(again, name)
+        np.testing.assert_allclose(b, a, rtol=1e-8, atol=1e-10 * np.abs(a).max(), err_msg=name)
+
+
+@pytest.mark.slow
+def test_stage_two_passes_simulation_based_calibration():
+    """Fleets drawn from stage two's own prior (20 of them; benchmarks/fleet_sbc.py runs 100):
+    rank histograms uniform (5 bins, Bonferroni over quantities) and mean 95 % coverage within
+    3 Monte Carlo sd (sqrt(0.0475 / 20)) of nominal."""
+    from bayescal.fleet.sbc import run_fleet_sbc
+    from bayescal.fleet.stage1 import fit_units
+
+    table, _ = simulate_fleet(_small_design(), seed=7)
+    fleet = fleet_from_frame(table.astype(str), source="small")
+    spec = _spec()
+    fits = fit_units(fleet, spec, "laplace", seed=7)
+    data, plan = fleet_data(fits, spec.fleet, spec.sphere.common_rel)
+    res = run_fleet_sbc(plan, data, spec.fleet, 20, seed=11)
+    summ = res.summary(bins=5)
+    assert summ.p_uniform.min() > 0.01 / len(summ), summ.sort_values("p_uniform").head()
+    assert abs(summ.coverage.mean() - 0.95) < 3 * np.sqrt(0.0475 / 20), summ.coverage.describe()

@@ -1,15 +1,24 @@
-"""Laplace equals the closed-form posterior of a linear-Gaussian model (1e-6 relative)."""
+"""Every posterior backend against the closed-form posterior of a linear-Gaussian model.
+
+Laplace's mode and covariance equal it to 1e-6 relative; each backend's draws (the
+conformance catalog: every registered backend, the same problem) match its mean and sd
+within their Monte Carlo error.
+"""
 
 import numpy as np
+import pytest
 
 import bayescal as bc
+from bayescal import backends
 from bayescal.components.response import NORMAL_GAIN_SD_FACTOR
 from bayescal.inference.laplace import laplace
 from bayescal.inference.program import program_for
 from bayescal.inference.start import initial_point
 
 
-def test_linear_gaussian_posterior(seed000):
+def _linear_gaussian(seed000):
+    """A model linear in every parameter (G, b0, b1) with Normal priors, its table, spec and the
+    exact posterior mean and covariance (in the program's flat parameter order)."""
     spec, design = seed000
     spec = spec.replace(
         response={"order": 1, "gain_prior": "normal", "pooled": False, "gain_prior_median": 0.8},
@@ -42,9 +51,34 @@ def test_linear_gaussian_posterior(seed000):
     cov = np.linalg.inv(precision)
     mean = cov @ (x.T @ (w * d["y"]) + prior_mean / prior_var)
 
+    return model, spec, mean, cov
+
+
+def test_linear_gaussian_posterior(seed000):
+    model, _, mean, cov = _linear_gaussian(seed000)
     program = program_for(model)
     result = laplace(program, model.data, initial_point(model, program))
     names = sorted(program.unravel(program.z0))
     assert names == ["G", "b0", "b1"]  # ravel order matches the design matrix
     np.testing.assert_allclose(result.mode, mean, rtol=1e-6, atol=0)
     np.testing.assert_allclose(result.cov, cov, rtol=1e-6, atol=1e-6 * np.abs(cov).max())
+
+
+@pytest.mark.parametrize("backend", backends.names())
+def test_every_backend_matches_the_closed_form(seed000, backend):
+    """The conformance catalog: each backend's posterior mean within 5 Monte Carlo sd (its own
+    ESS) of the exact one for every parameter, and its sd within 15 %."""
+    model, spec, mean, cov = _linear_gaussian(seed000)
+    spec = spec.replace(
+        inference={"chains": 2, "warmup": 300, "draws": 600, "min_ess": 100, "emcee_steps": 1500, "emcee_burn": 500}
+    )
+    result = bc.fit(model.table, spec, backend, seed=3)
+    post = result.posterior["posterior"]
+    chains, draws = np.shape(post["G"])[:2]
+    flat = np.concatenate([np.asarray(post[k]).reshape(chains * draws, -1) for k in ("G", "b0", "b1")], axis=1)
+    d = result.diagnostics
+    ess = float(d.min_ess_bulk) if backend != "laplace" else float(flat.shape[0])
+    sd = np.sqrt(np.diag(cov))
+    z = (flat.mean(axis=0) - mean) / (sd / np.sqrt(ess))
+    assert np.max(np.abs(z)) < 5.0, (backend, ess, z)
+    np.testing.assert_allclose(flat.std(axis=0), sd, rtol=0.15)

@@ -170,14 +170,13 @@ class FleetFit:
                 return self._physical(self._flat("theta")[:, :, same[-1], :])
         rate = self._rate(camera, rng)  # (S, 2)
         drift = rate * (t - self.data.t_mean)
-        n = drift.shape[0]
-        if self.plan.walk and units is not None:
+        if units is not None and self.plan.walk:
             nearest = units[np.argmin(np.abs(self.data.years[units] - t))]
+            drift = drift + self._flat("walk")[:, :, nearest]
             gap = abs(t - self.data.years[nearest])
-            step = self._flat("walk_sd") * np.sqrt(gap) * rng.standard_normal(drift.shape)
-            drift = drift + self._flat("walk")[:, :, nearest] + step
-        if self.plan.jitter:  # that date's own state of the camera
-            drift = drift + self._flat("jitter_sd") * rng.standard_normal((n, 2))
+        else:
+            gap = None  # no walk from a campaign: the population's trend alone
+        drift = drift + self._ahead(slice(0, 2), gap, rng)
 
         level = level.copy()
         level[:, :2, :] += drift[:, :, None]
@@ -204,25 +203,47 @@ class FleetFit:
             return rho + self._flat("rate_sd") * rng.standard_normal(rho.shape)
         return rho
 
-    def gain_drift(self, camera: str, date, since=None, seed: int = 0) -> np.ndarray:
-        """Draws ``(S,)`` of the relative gain change ``gain(date) / gain(since) - 1``
-        (``since``: the camera's last campaign)."""
+    def _ahead(self, kinds, gap, rng: np.random.Generator) -> np.ndarray:
+        """What a camera's state gains in ``gap`` years from a known one (None: no walk step):
+        the random walk's step ``walk_sd sqrt(gap) z`` and the new date's own state
+        ``jitter_sd z'``, for the drifting ``kinds``; ``(S, n_kinds)`` (``gap`` may be ``(D,)``:
+        then ``(S, n_kinds, D)``, one draw of ``z``, ``z'`` shared by every date)."""
+        n = self._flat("theta").shape[0]
+        size = len(range(*kinds.indices(2)))
+        out = np.zeros((n, size))
+        gap = None if gap is None else np.asarray(gap, dtype=float)
+        extra = () if gap is None or gap.ndim == 0 else (None,)
+        out = out[(...,) + extra]
+        if self.plan.walk and gap is not None:
+            z = rng.standard_normal((n, size))[(...,) + extra]
+            out = out + self._flat("walk_sd")[:, kinds][(...,) + extra] * np.sqrt(np.abs(gap)) * z
+        if self.plan.jitter:
+            z = rng.standard_normal((n, size))[(...,) + extra]
+            out = out + self._flat("jitter_sd")[:, kinds][(...,) + extra] * z
+        return out
+
+    def _gain_change(self, camera: str, t1, since=None, seed: int = 0) -> np.ndarray:
+        """Log-gain change (standardised) from ``since`` (default: the last campaign) to the
+        dates ``t1`` (years; scalar or ``(D,)``): draws ``(S,)`` or ``(S, D)``."""
         if not self.plan.drift:
             raise SpecError("the fleet has one campaign date: drift is not modelled (add campaigns)")
         m = self.camera_index(camera)
         units = np.flatnonzero(self.data.camera == m)
-        t1 = self.years(date)
+        t1 = np.asarray(t1, dtype=float)
         t0 = float(self.data.years[units[-1]]) if since is None else self.years(since)
         rng = np.random.default_rng(np.random.SeedSequence([seed, 0xD41F7]))
         rate = self._flat("rate")[:, 0, m] if "rate" in self.draws.draws else self._flat("rate_mean")[:, 0]
-        change = rate * (t1 - t0)
-        if self.plan.walk:
-            change = change + self._flat("walk_sd")[:, 0] * np.sqrt(abs(t1 - t0)) * rng.standard_normal(change.shape)
-        if self.plan.jitter:  # the date's own state against the last campaign's (known from its data)
-            last = self._flat("jitter")[:, 0, units[-1]] if since is None else 0.0
-            change = change + self._flat("jitter_sd")[:, 0] * rng.standard_normal(change.shape) - last
+        extra = (None,) * t1.ndim
+        change = rate[(...,) + extra] * (t1 - t0)
+        change = change + self._ahead(slice(0, 1), t1 - t0, rng)[:, 0]
+        if self.plan.jitter and since is None:  # against the last campaign's own state (known from its data)
+            change = change - self._flat("jitter")[:, 0, units[-1]][(...,) + extra]
+        return change
 
-        return np.expm1(change * self.data.scale[0])
+    def gain_drift(self, camera: str, date, since=None, seed: int = 0) -> np.ndarray:
+        """Draws ``(S,)`` of the relative gain change ``gain(date) / gain(since) - 1``
+        (``since``: the camera's last campaign)."""
+        return np.expm1(self._gain_change(camera, self.years(date), since, seed) * self.data.scale[0])
 
     def drift_probability(self, camera: str, date, percent: float, since=None, seed: int = 0) -> float:
         """``P(|gain(date) / gain(since) - 1| > percent / 100)`` (``since``: the last campaign)."""
@@ -232,15 +253,17 @@ class FleetFit:
 
     def recalibration_date(self, camera: str, percent: float, probability: float = 0.05, horizon_years: float = 10.0):
         """The first date (monthly steps) at which ``drift_probability`` exceeds ``probability``;
-        None if not within ``horizon_years`` of the last campaign."""
+        None if not within ``horizon_years`` of the last campaign.  Every month is evaluated in
+        one pass, with the same draws :meth:`drift_probability` uses for each date."""
+        if percent <= 0:
+            raise SpecError(f"drift threshold {percent} %: expected a positive percentage")
         m = self.camera_index(camera)
         units = np.flatnonzero(self.data.camera == m)
         last = self.origin + pd.Timedelta(days=float(self.data.years[units[-1]]) * DAYS_PER_YEAR)
-        for month in range(1, int(12 * horizon_years) + 1):
-            date = last + pd.DateOffset(months=month)
-            if self.drift_probability(camera, date, percent) > probability:
-                return date.normalize()
-        return None
+        dates = [last + pd.DateOffset(months=k) for k in range(1, int(12 * horizon_years) + 1)]
+        change = np.expm1(self._gain_change(camera, np.array([self.years(d) for d in dates])) * self.data.scale[0])
+        over = np.flatnonzero(np.mean(np.abs(change) > percent / 100.0, axis=0) > probability)
+        return dates[over[0]].normalize() if len(over) else None
 
     # ------------------------------------------------------------ tables
     def summary(self) -> pd.DataFrame:

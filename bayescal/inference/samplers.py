@@ -19,7 +19,16 @@ from .emcee_backend import run_emcee
 from .laplace import integrated_draws, laplace_draws
 from .nuts import run_nuts
 
-__all__ = ["LaplaceBackend", "NutsBackend", "EmceeBackend", "laplace_z", "note_retry", "nuts_stats", "refuse_pooled"]
+__all__ = [
+    "LaplaceBackend",
+    "NutsBackend",
+    "EmceeBackend",
+    "chains_dataset",
+    "laplace_z",
+    "note_retry",
+    "nuts_stats",
+    "refuse_pooled",
+]
 
 
 def laplace_z(model, program, result, seed: int, extra: dict) -> np.ndarray:
@@ -74,7 +83,7 @@ def nuts_stats(out) -> dict:
     }
 
 
-def _chains_dataset(posterior: dict) -> xr.Dataset:
+def chains_dataset(posterior: dict) -> xr.Dataset:
     """Physical draws ``(chain, draw, ...)`` for R-hat and ESS; the reference constants left out."""
     return xr.Dataset(
         {
@@ -117,7 +126,7 @@ class NutsBackend:
         return Draws(out.z, int(out.diverging.sum()), nuts_stats(out), extra)
 
     def verdict(self, draws: Draws, posterior: dict, spec, mode) -> Diagnostics:
-        return mcmc_diagnostics(_chains_dataset(posterior), draws.divergences, spec.inference, draws.extra)
+        return mcmc_diagnostics(chains_dataset(posterior), draws.divergences, spec.inference, draws.extra)
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ import pandas as pd
 
 from .bench import BenchCamera, Departures, simulate_bench
 
-__all__ = ["FleetDesign", "simulate_fleet"]
+__all__ = ["FleetDesign", "SMALL_FLEET", "simulate_fleet"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,18 @@ class FleetDesign:
     def names(self) -> list[str]:
         """Camera serial numbers."""
         return [f"SN{i + 1:03d}" for i in range(self.n_cameras)]
+
+
+#: a small fleet for tests and sampler checks: 6 cameras over 3 yearly campaigns, one swept at
+#: 3 levels only, one absent from the last campaign
+SMALL_FLEET = FleetDesign(
+    n_cameras=6,
+    campaigns=("2024-03-01", "2025-03-01", "2026-03-01"),
+    n_pixels=64,
+    n_frames=10,
+    brief=("SN006",),
+    absent=(("SN005", "2026-03-01"),),
+)
 
 
 def simulate_fleet(design: FleetDesign | None = None, seed: int = 0) -> tuple[pd.DataFrame, pd.DataFrame]:

@@ -1,0 +1,118 @@
+"""Time of the fleet hierarchy's stage two beside stage one, and of its gradient.
+
+A fleet of 20 cameras x 3 campaigns x 12 radiance levels (the independent simulator,
+bayescal.validation.fleet).  In one run, on the same data:
+
+- stage one: the 60 units fitted separately with ``fit_many`` (Laplace), cold and warm;
+- stage two: NUTS on the hierarchy's scales with every other quantity integrated out
+  (:func:`bayescal.fleet.model.log_marginal`), cold (compiling) and warm, with its
+  divergences, R-hat and ESS;
+- one gradient of the log marginal likelihood: the closed form (posterior mean and
+  covariance blocks) against reverse-mode differentiation through the factorisations.
+
+Usage: ``python benchmarks/fleet_speed.py [--cameras 20] [--repeats 2]``; results in
+``benchmarks/results/fleet_speed.{csv,md}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bayescal import load_spec
+from bayescal._config import enable_numerics
+from bayescal.fleet import fit_fleet
+from bayescal.fleet.model import _integrated, block_scales, fleet_data, integrated_value
+from bayescal.fleet.sampling import _unpack
+from bayescal.fleet.stage1 import fit_units
+from bayescal.fleet.units import fleet_from_frame
+from bayescal.validation.fleet import FleetDesign, simulate_fleet
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _gradient_ms(data, plan, repeats: int = 100, blocks: int = 8) -> dict:
+    """Milliseconds per value-and-gradient call: the two implementations in alternating blocks
+    of ``repeats`` calls, the fastest block of each (this machine's timing noise is +-30 %)."""
+    import jax
+    import jax.numpy as jnp
+
+    arrays = {k: jnp.asarray(v) for k, v in data.arrays().items()}
+    dim = sum(plan.sampled().values())
+    u = jnp.full(dim, np.log(0.5))
+    hyper = _unpack(plan, u, jnp)
+    sc = block_scales(plan, hyper, jnp)[:, None, :] * arrays["active"]
+    w = 1.0 / hyper["excess"]
+    fs = {
+        "closed_form": jax.jit(jax.value_and_grad(_integrated(), argnums=(0, 1))),
+        "reverse_mode": jax.jit(jax.value_and_grad(lambda s, v, a: integrated_value(s, v, a)[0], argnums=(0, 1))),
+    }
+    best = dict.fromkeys(fs, np.inf)
+    for f in fs.values():
+        jax.block_until_ready(f(sc, w, arrays))
+    for _ in range(blocks):
+        for name, f in fs.items():
+            t = time.perf_counter()
+            for i in range(repeats):
+                jax.block_until_ready(f(sc * (1.0 + 1e-6 * i), w, arrays))
+            best[name] = min(best[name], (time.perf_counter() - t) / repeats * 1e3)
+    out = {f"gradient_{name}_ms": v for name, v in best.items()}
+    out["gradient_speedup"] = out["gradient_reverse_mode_ms"] / out["gradient_closed_form_ms"]
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cameras", type=int, default=20)
+    ap.add_argument("--repeats", type=int, default=2, help="warm stage-two fits (seeds 1, 2, ...)")
+    args = ap.parse_args()
+    enable_numerics()
+    spec = load_spec(ROOT / "models" / "fleet_seed000.toml")
+    table, _ = simulate_fleet(FleetDesign(n_cameras=args.cameras), seed=5)
+    fleet = fleet_from_frame(table.astype(str), source=f"fleet of {args.cameras}")
+    row: dict = {"cameras": args.cameras, "units": len(fleet.units)}
+    t = time.perf_counter()
+    fits = fit_units(fleet, spec, "laplace", seed=5)
+    row["stage1_cold_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    fits = fit_units(fleet, spec, "laplace", seed=6)
+    row["stage1_warm_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    fit_fleet(fleet, spec, fits=fits, seed=0)
+    row["stage2_cold_s"] = time.perf_counter() - t
+    warm, diags = [], []
+    for seed in range(1, args.repeats + 1):
+        t = time.perf_counter()
+        result = fit_fleet(fleet, spec, fits=fits, seed=seed)
+        warm.append(time.perf_counter() - t)
+        diags.append(result.draws.diagnostics)
+    row["stage2_warm_s"] = float(np.median(warm))
+    row["stage2_over_stage1_warm"] = row["stage2_warm_s"] / row["stage1_warm_s"]
+    row["draws"] = f"{spec.fleet.chains} x {spec.fleet.draws} (+{spec.fleet.warmup} warmup)"
+    row["divergences"] = max(d["divergences"] for d in diags)
+    row["max_rhat"] = max(d["max_rhat"] for d in diags)
+    row["min_ess"] = min(min(d["min_ess_bulk"], d["min_ess_tail"]) for d in diags)
+    data, plan = fleet_data(fits, spec.fleet, spec.sphere.common_rel)
+    row |= _gradient_ms(data, plan)
+    df = pd.DataFrame([row])
+    out = ROOT / "benchmarks" / "results"
+    df.to_csv(out / "fleet_speed.csv", index=False, float_format="%.4g")
+    lines = [
+        "# Fleet stage two beside stage one (same run, 2 cores)",
+        "",
+        f"{args.cameras} cameras x 3 campaigns x 12 levels; stage one = every unit fitted alone with",
+        "`fit_many` (Laplace); stage two = NUTS on the scales, the rest integrated out and drawn",
+        "exactly; warm = a second fit of the same structure (median of the warm repeats).",
+        "",
+    ]
+    lines += [f"- {k}: {v:.4g}" if isinstance(v, float) else f"- {k}: {v}" for k, v in row.items()]
+    (out / "fleet_speed.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
