@@ -9,13 +9,16 @@ from the persistent compilation cache when it is on).
 
 from __future__ import annotations
 
+import ctypes
+import gc
 import sys
 
 __all__ = ["clear_caches"]
 
 
 def clear_caches() -> None:
-    """Forget every compiled program of bayescal and JAX's in-memory caches."""
+    """Forget every compiled program of bayescal and JAX's in-memory caches, and return the
+    freed memory to the system."""
     for name, module in list(sys.modules.items()):
         if not name.startswith("bayescal.") or module is None:
             continue
@@ -30,3 +33,18 @@ def clear_caches() -> None:
         import jax
 
         jax.clear_caches()
+    gc.collect()
+    _trim_heap()
+
+
+def _trim_heap() -> None:
+    """Hand freed heap pages back to the system (glibc's ``malloc_trim``; elsewhere nothing).
+
+    Chains run on threads, each with its own malloc arena; without a trim the memory of the
+    released programs stays resident (measured: 1.6 GB resident after a fleet fit and
+    ``clear_caches`` without it, 0.6 GB with it).
+    """
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass

@@ -64,6 +64,9 @@ def test_linear_gaussian_posterior(seed000):
     np.testing.assert_allclose(result.cov, cov, rtol=1e-6, atol=1e-6 * np.abs(cov).max())
 
 
+# the linear model misfits the simulated (curved) camera, which its verdict says; the posterior
+# of that model is still the closed form the draws must match
+@pytest.mark.filterwarnings("ignore::bayescal.FitFailedWarning")
 @pytest.mark.parametrize("backend", backends.names())
 def test_every_backend_matches_the_closed_form(seed000, backend):
     """The conformance catalog: each backend's posterior mean within 5 Monte Carlo sd (its own
