@@ -323,10 +323,11 @@ def design_of(plan: Plan, data: FleetData):
     return _design(plan, *(getattr(data, f) for f in fields))
 
 
-def with_units(plan: Plan, data: FleetData, y: np.ndarray) -> FleetData:
+def with_units(plan: Plan, data: FleetData, y: np.ndarray, design=None) -> FleetData:
     """The same fleet (structure, units' covariances, standardisation) reporting other
-    standardised values ``y`` ``(U, K, C)``: what simulation-based calibration refits."""
-    h_g, h_m, _ = design_of(plan, data)
+    standardised values ``y`` ``(U, K, C)``: what simulation-based calibration refits
+    (``design``: :func:`design_of` of ``data``, when the caller already has it)."""
+    h_g, h_m, _ = design_of(plan, data) if design is None else design
     cov = data.chol @ np.swapaxes(data.chol, -1, -2)
     g_gg, g_gm, g_mm, b_g, b_m, yy = _blocks(plan, h_g, h_m, cov, y, data.camera)
     return replace(data, y=y.reshape(plan.n_units, -1), g_gg=g_gg, g_gm=g_gm, g_mm=g_mm, b_g=b_g, b_m=b_m, yy=yy)

@@ -24,9 +24,10 @@ from .sampling import _priors, sample_fleet
 __all__ = ["FleetSBC", "prior_fleet", "run_fleet_sbc"]
 
 
-def prior_fleet(plan: Plan, data: FleetData, rng: np.random.Generator) -> tuple[dict, np.ndarray]:
+def prior_fleet(plan: Plan, data: FleetData, rng: np.random.Generator, design=None) -> tuple[dict, np.ndarray]:
     """One fleet from the stage-two prior: the true values by name and the units' reports
-    ``(U, K, C)`` (standardised, as :class:`~.model.FleetData` holds them)."""
+    ``(U, K, C)`` (standardised, as :class:`~.model.FleetData` holds them).  ``design``:
+    :func:`~.model.design_of` of ``data``, when the caller already has it."""
     priors = _priors(plan)
     hyper = {}
     for name, size in plan.sampled().items():
@@ -37,16 +38,15 @@ def prior_fleet(plan: Plan, data: FleetData, rng: np.random.Generator) -> tuple[
     sc = block_scales(plan, hyper)[:, None, :] * data.active  # (K, M, B)
     g = rng.standard_normal(data.prior_var_g.shape) * np.sqrt(data.prior_var_g)  # (K, G)
     x_m = sc * rng.standard_normal(sc.shape)
-    h_g, h_m, _ = design_of(plan, data)
+    h_g, h_m, _ = design_of(plan, data) if design is None else design
     theta = np.einsum("kucg,kg->kuc", h_g, g) + np.einsum("kucb,kub->kuc", h_m, x_m[:, data.camera, :])
     z = rng.standard_normal((plan.n_units, k_n * plan.n_channels))
     noise = np.einsum("uqr,ur->uq", data.chol, z).reshape(plan.n_units, k_n, plan.n_channels)
     y = np.transpose(theta, (1, 0, 2)) + noise * np.sqrt(kappa)[None, :, None]
     truth = {name: np.atleast_1d(v) for name, v in hyper.items()}
     truth["mu"] = g[:, : plan.n_channels]
-    truth["camera_level"] = (g[:, None, : plan.n_channels] + x_m[:, :, :1] + x_m[:, :, 1 : 1 + plan.n_channels])[
-        :, :1
-    ]  # the first camera's level per kind and channel
+    c_n = plan.n_channels
+    truth["camera_level"] = g[:, :c_n] + x_m[:, 0, :1] + x_m[:, 0, 1 : 1 + c_n]  # the first camera's, (K, C)
     return truth, y
 
 
@@ -93,9 +93,10 @@ def run_fleet_sbc(
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5BC]))
     ranks, covered, diags = [], [], []
     n_draws = 0
+    design = design_of(plan, data)  # the structure is the same for every simulated fleet
     for i in range(n_sims):
-        truth, y = prior_fleet(plan, data, rng)
-        draws = sample_fleet(with_units(plan, data, y), plan, spec, seed=seed + i)
+        truth, y = prior_fleet(plan, data, rng, design)
+        draws = sample_fleet(with_units(plan, data, y, design), plan, spec, seed=seed + i)
         r, c = {}, {}
         for name, true in truth.items():
             post = draws.draws[name][:, ::thin]
