@@ -8,8 +8,9 @@ least-squares baseline the calibration literature uses.  See the README and
 
 The public API is flat and loaded on first use: ``import bayescal`` imports
 neither JAX nor arviz and changes no global setting, so ``bayescal --help``
-is instant.  The first use of a computing attribute switches JAX to float64
-and turns on bayescal's compilation cache (:func:`bayescal.enable_numerics`).
+is instant.  Functions that compute run in float64 with bayescal's compilation
+cache, and put JAX's settings back when they return (:func:`bayescal.numerics`);
+:func:`bayescal.enable_numerics` switches both on for the whole process.
 """
 
 from __future__ import annotations
@@ -19,72 +20,73 @@ import sys
 import types
 from typing import TYPE_CHECKING, Any
 
-from ._config import enable_compilation_cache, enable_float64, enable_numerics
-from ._version import __version__
-from .errors import BayescalError, FitFailedError, FitFailedWarning, SpecError, TableError
+from bayescal._config import enable_compilation_cache, enable_float64, enable_numerics, numerics
+from bayescal._version import __version__
+from bayescal.errors import BayescalError, FitFailedError, FitFailedWarning, SpecError, TableError
 
 #: public name -> module that defines it
 _LAZY = {
-    "CalibrationModel": ".assemble",
-    "build_model": ".assemble",
-    "FitBatch": ".batch",
-    "fit_many": ".batch",
-    "CalibratedRange": ".calibration",
-    "Calibration": ".calibration",
-    "Setting": ".calibration",
-    "Design": ".design",
-    "Truth": ".design",
-    "load_design": ".design",
-    "Diagnostics": ".diagnostics",
-    "FleetFit": ".fleet.posterior",
-    "compare_pooling": ".fleet.posterior",
-    "fit_fleet": ".fleet.posterior",
-    "fleet_calibration": ".fleet.export",
-    "load_fleet_table": ".fleet.units",
-    "Steps": ".emva",
-    "load_steps": ".emva",
-    "read_descriptor": ".emva",
-    "BACKENDS": ".fit",
-    "Fit": ".fit",
-    "fit": ".fit",
-    "invert_image": ".images",
-    "read_image": ".images",
-    "write_radiance_maps": ".images",
-    "LinearFit": ".inference.lsq",
-    "lsq_baseline": ".inference.lsq",
-    "lstsq": ".inference.lsq",
-    "polyfit": ".inference.lsq",
-    "MapSet": ".maps.apply",
-    "apply_maps": ".maps.apply",
-    "build_maps": ".maps.build",
-    "make_maps": ".maps.store",
-    "read_maps": ".maps.store",
-    "write_maps": ".maps.store",
-    "load_stacks": ".maps.stacks",
-    "write_emva_stacks": ".maps.stacks",
-    "Inversion": ".invert",
-    "invert": ".invert",
-    "radiance_draws": ".invert",
-    "compare_nonlinearity": ".nonlinearity",
-    "patent_baseline": ".nonlinearity",
-    "simulate_curves": ".nonlinearity",
-    "Characterization": ".photon_transfer",
-    "characterize": ".photon_transfer",
-    "standard_method": ".photon_transfer",
-    "Plan": ".plan",
-    "default_window": ".plan",
-    "plan_exposure": ".plan",
-    "predict": ".predict",
-    "SBCResult": ".sbc",
-    "run_sbc": ".sbc",
-    "SceneChoice": ".scene",
-    "choose_for_scene": ".scene",
-    "Simulation": ".simulate",
-    "simulate": ".simulate",
-    "ModelSpec": ".spec",
-    "load_spec": ".spec",
-    "MeasurementTable": ".table",
-    "load_table": ".table",
+    "CalibrationModel": "bayescal.model.assemble",
+    "build_model": "bayescal.model.assemble",
+    "FitBatch": "bayescal.fitting.batch",
+    "fit_many": "bayescal.fitting.batch",
+    "CalibratedRange": "bayescal.posterior.calibration",
+    "Calibration": "bayescal.posterior.calibration",
+    "Setting": "bayescal.posterior.calibration",
+    "Design": "bayescal.io.design",
+    "Truth": "bayescal.io.design",
+    "load_design": "bayescal.io.design",
+    "Diagnostics": "bayescal.inference.diagnostics",
+    "FleetFit": "bayescal.fleet.posterior",
+    "compare_pooling": "bayescal.fleet.posterior",
+    "fit_fleet": "bayescal.fleet.posterior",
+    "fleet_calibration": "bayescal.fleet.export",
+    "load_fleet_table": "bayescal.fleet.units",
+    "Steps": "bayescal.io.emva",
+    "load_steps": "bayescal.io.emva",
+    "read_descriptor": "bayescal.io.emva",
+    "BACKENDS": "bayescal.fitting.fit",
+    "Fit": "bayescal.fitting.fit",
+    "fit": "bayescal.fitting.fit",
+    "invert_image": "bayescal.prediction.images",
+    "read_image": "bayescal.prediction.images",
+    "write_radiance_maps": "bayescal.prediction.images",
+    "LinearFit": "bayescal.inference.lsq",
+    "lsq_baseline": "bayescal.inference.lsq",
+    "lstsq": "bayescal.inference.lsq",
+    "polyfit": "bayescal.inference.lsq",
+    "MapSet": "bayescal.maps.apply",
+    "apply_maps": "bayescal.maps.apply",
+    "build_maps": "bayescal.maps.build",
+    "make_maps": "bayescal.maps.store",
+    "read_maps": "bayescal.maps.store",
+    "write_maps": "bayescal.maps.store",
+    "load_stacks": "bayescal.maps.stacks",
+    "write_emva_stacks": "bayescal.maps.stacks",
+    "Inversion": "bayescal.prediction.invert",
+    "invert": "bayescal.prediction.invert",
+    "radiance_draws": "bayescal.prediction.invert",
+    "compare_nonlinearity": "bayescal.characterization.nonlinearity",
+    "patent_baseline": "bayescal.characterization.nonlinearity",
+    "simulate_curves": "bayescal.characterization.nonlinearity",
+    "Characterization": "bayescal.characterization.emva1288",
+    "characterize": "bayescal.characterization.emva1288",
+    "standard_method": "bayescal.characterization.emva1288",
+    "Plan": "bayescal.prediction.plan",
+    "default_window": "bayescal.prediction.plan",
+    "plan_exposure": "bayescal.prediction.plan",
+    "predict": "bayescal.prediction.readings",
+    "SBCResult": "bayescal.validation.sbc",
+    "run_sbc": "bayescal.validation.sbc",
+    "SceneChoice": "bayescal.prediction.scene",
+    "choose_for_scene": "bayescal.prediction.scene",
+    "Simulation": "bayescal.model.simulate",
+    "simulate": "bayescal.model.simulate",
+    "ModelSpec": "bayescal.model.spec",
+    "Reference": "bayescal.model.spec",
+    "load_spec": "bayescal.model.spec",
+    "MeasurementTable": "bayescal.io.table",
+    "load_table": "bayescal.io.table",
 }
 
 __all__ = sorted(
@@ -98,6 +100,7 @@ __all__ = sorted(
         "enable_compilation_cache",
         "enable_float64",
         "enable_numerics",
+        "numerics",
         *_LAZY,
     ]
 )
@@ -107,8 +110,7 @@ def __getattr__(name: str) -> Any:
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module 'bayescal' has no attribute '{name}'")
-    enable_numerics()
-    value = getattr(importlib.import_module(module, __name__), name)
+    value = getattr(importlib.import_module(module), name)
     globals()[name] = value
     return value
 
@@ -131,29 +133,29 @@ sys.modules[__name__].__class__ = _Package
 
 
 if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
-    from .assemble import CalibrationModel, build_model
-    from .batch import FitBatch, fit_many
-    from .calibration import CalibratedRange, Calibration, Setting
-    from .design import Design, Truth, load_design
-    from .diagnostics import Diagnostics
-    from .emva import Steps, load_steps, read_descriptor
-    from .fit import BACKENDS, Fit, fit
-    from .fleet.export import fleet_calibration
-    from .fleet.posterior import FleetFit, compare_pooling, fit_fleet
-    from .fleet.units import load_fleet_table
-    from .images import invert_image, read_image, write_radiance_maps
-    from .inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit
-    from .invert import Inversion, invert, radiance_draws
-    from .maps.apply import MapSet, apply_maps
-    from .maps.build import build_maps
-    from .maps.stacks import load_stacks, write_emva_stacks
-    from .maps.store import make_maps, read_maps, write_maps
-    from .nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves
-    from .photon_transfer import Characterization, characterize, standard_method
-    from .plan import Plan, default_window, plan_exposure
-    from .predict import predict
-    from .sbc import SBCResult, run_sbc
-    from .scene import SceneChoice, choose_for_scene
-    from .simulate import Simulation, simulate
-    from .spec import ModelSpec, load_spec
-    from .table import MeasurementTable, load_table
+    from bayescal.characterization.emva1288 import Characterization, characterize, standard_method
+    from bayescal.characterization.nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves
+    from bayescal.fitting.batch import FitBatch, fit_many
+    from bayescal.fitting.fit import BACKENDS, Fit, fit
+    from bayescal.fleet.export import fleet_calibration
+    from bayescal.fleet.posterior import FleetFit, compare_pooling, fit_fleet
+    from bayescal.fleet.units import load_fleet_table
+    from bayescal.inference.diagnostics import Diagnostics
+    from bayescal.inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit
+    from bayescal.io.design import Design, Truth, load_design
+    from bayescal.io.emva import Steps, load_steps, read_descriptor
+    from bayescal.io.table import MeasurementTable, load_table
+    from bayescal.maps.apply import MapSet, apply_maps
+    from bayescal.maps.build import build_maps
+    from bayescal.maps.stacks import load_stacks, write_emva_stacks
+    from bayescal.maps.store import make_maps, read_maps, write_maps
+    from bayescal.model.assemble import CalibrationModel, build_model
+    from bayescal.model.simulate import Simulation, simulate
+    from bayescal.model.spec import ModelSpec, Reference, load_spec
+    from bayescal.posterior.calibration import CalibratedRange, Calibration, Setting
+    from bayescal.prediction.images import invert_image, read_image, write_radiance_maps
+    from bayescal.prediction.invert import Inversion, invert, radiance_draws
+    from bayescal.prediction.plan import Plan, default_window, plan_exposure
+    from bayescal.prediction.readings import predict
+    from bayescal.prediction.scene import SceneChoice, choose_for_scene
+    from bayescal.validation.sbc import SBCResult, run_sbc

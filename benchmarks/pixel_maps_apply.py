@@ -30,7 +30,7 @@ import numpy as np
 
 import bayescal as bc
 from bayescal.maps.apply import MapSet, apply_maps
-from bayescal.spec import Reference
+from bayescal.model.spec import Reference
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

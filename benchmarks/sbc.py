@@ -6,7 +6,7 @@ For the seed 000 Bayer camera and the seed 002 TDI camera, with camera-class
 priors (the weakly informative defaults put almost all their mass on
 impossible readings, see :mod:`bayescal.sbc`): draw parameters from the
 prior, readings from the model over the shipped design, fit each dataset
-(:func:`bayescal.batch.fit_models`, one compilation), and test that the ranks
+(:func:`bayescal.fitting.batch.fit_models`, one compilation), and test that the ranks
 of the truths among 99 thinned posterior draws are uniform.  Writes
 ``benchmarks/results/sbc_<scenario>_<backend>.{csv,md,png}`` and
 ``benchmarks/results/sbc.md`` (other ``--sims``/``--seed`` values add ``_n<sims>_s<seed>``).
@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 import bayescal as bc
-from bayescal.progress import progress_bar
-from bayescal.sbc import CAMERA_CLASS_PRIORS, run_sbc
+from bayescal.cli.progress import progress_bar
+from bayescal.validation.sbc import CAMERA_CLASS_PRIORS, run_sbc
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

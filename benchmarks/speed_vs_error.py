@@ -27,8 +27,8 @@ import numpy as np
 import pandas as pd
 
 import bayescal as bc
-from bayescal.batch import fit_many
-from bayescal.design import Block
+from bayescal.fitting.batch import fit_many
+from bayescal.io.design import Block
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

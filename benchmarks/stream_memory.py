@@ -2,7 +2,7 @@
 
 Run: ``python benchmarks/stream_memory.py``.  Frames (640 x 480, uint16, like
 the EMVA 1288 reference camera) are generated one at a time, as they would be
-read from disk, and reduced by :func:`bayescal.emva.reduce_stack`; tracemalloc
+read from disk, and reduced by :func:`bayescal.io.emva.reduce_stack`; tracemalloc
 records the peak of Python/numpy allocations.  Writes
 ``benchmarks/results/stream_memory.md``.
 """
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayescal.emva import reduce_stack
+from bayescal.io.emva import reduce_stack
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 

@@ -85,7 +85,7 @@ plan.table.head()""",
     (
         "code",
         """import tempfile
-from bayescal.report import write_report
+from bayescal.report.html import write_report
 out = tempfile.mkdtemp()
 fit.save(out)
 print(write_report(out))""",
@@ -123,7 +123,7 @@ fit.comparison.round(4)""",
     ("md", "## The paper's own numbers through the same code (published coefficients, fixed)"),
     (
         "code",
-        """from bayescal.spec import Reference
+        """from bayescal.model.spec import Reference
 ref = Reference(105e-6, 1.0, 48)
 quad = bc.Calibration.from_coefficients({"pan": [2.154, 3755.0, -2582.0]}, reference=ref, bits=10,
                                         stimulus="irradiance")
@@ -220,7 +220,7 @@ crop.table.set_index("quantity").loc[["K", "QE", "sigma_y_dark"], ["standard", "
         "code",
         """import tempfile
 from IPython.display import Image
-from bayescal.photon_transfer import plot_curves
+from bayescal.characterization.emva1288 import plot_curves
 png = Path(tempfile.mkdtemp()) / "photon_transfer.png"
 plot_curves(res, png)
 Image(str(png))""",
@@ -345,7 +345,7 @@ print("defective pixels:", int((maps["defect"] > 0).sum()), "| report:", page.na
     (
         "code",
         """from IPython.display import Image
-from bayescal.figures import subplots
+from bayescal.report.figures import subplots
 fig, axes = subplots(1, 2, figsize=(9, 3.6))
 for ax, name, title in zip(axes, ["relative_gain", "u_random_relative_gain"], ["relative gain", "its posterior sd"]):
     im = ax.imshow(maps[name], cmap="viridis")

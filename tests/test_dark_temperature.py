@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import bayescal as bc
-from bayescal.design import Block
+from bayescal.io.design import Block
 
 
 def thermal_camera(spec, design):

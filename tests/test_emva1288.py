@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
+from bayescal.characterization.emva1288 import characterize
 from bayescal.cli import main
-from bayescal.emva import load_steps, read_descriptor, reduce_pair, reduce_stack
 from bayescal.errors import TableError
-from bayescal.photon_transfer import characterize
+from bayescal.io.emva import load_steps, read_descriptor, reduce_pair, reduce_stack
 
 from .conftest import DATA
 
@@ -77,7 +77,7 @@ def test_posteriors_have_intervals_and_dark_currents_are_compared(full):
 
 def test_posteriors_cover_simulated_sensors():
     """40 simulated linear sensors (K 0.28 DN/e-, QE 45 %, sigma_d 11 e-): 95 % intervals cover the truth."""
-    from bayescal.emva import simulate_steps
+    from bayescal.io.emva import simulate_steps
 
     hits: dict = {"K": [], "QE": [], "sigma_y_dark": [], "sigma_d": []}
     electrons = 11**2 + 30 * 0.011 / 50  # read noise^2 + dark shot at the first (shortest) step
@@ -103,7 +103,7 @@ def test_k_and_qe_cover_on_nonlinear_sensors():
     origin covered the cubic sensors but only 0.35 of the quintic ones.  Measured with the quartic over 60
     sensors per shape: 0.93-0.97 (linear sensors 0.95 / 0.93).  80 intervals per quantity, >= 68 hits required
     (P ~ 2e-3 at a true 0.93)."""
-    from bayescal.emva import simulate_steps
+    from bayescal.io.emva import simulate_steps
 
     hits: dict = {"K": 0, "QE": 0}
     for seed in range(20):
@@ -171,7 +171,7 @@ def test_illumination_sweep_layout_and_undetermined_dark_current():
     determined (no number, no interval) rather than as a fit through one point."""
     import dataclasses
 
-    from bayescal.emva import simulate_steps
+    from bayescal.io.emva import simulate_steps
 
     sweep = simulate_steps(seed=4)
     t0 = float(sweep.bright["texp_s"].iloc[-1])
@@ -193,7 +193,7 @@ def test_illumination_sweep_layout_and_undetermined_dark_current():
 
 def test_bit_depth_of_a_reduced_table(tmp_path):
     """An 8-bit camera's steps table is read as 8-bit (full scale 255), not guessed as 12-bit."""
-    from bayescal.emva import load_steps
+    from bayescal.io.emva import load_steps
 
     rows = ["kind,texp_ns,photons_per_pixel,n_images,mean_DN,var_temporal_DN2"]
     rows += [f"bright,{1000 * i},{100 * i},2,{10 + 24 * i},{2 + 5 * i}" for i in range(1, 11)]
@@ -209,7 +209,7 @@ def test_implausible_characterisation_is_reported(tmp_path):
     plausible sensor has no problems."""
     import dataclasses
 
-    from bayescal.emva import simulate_steps
+    from bayescal.io.emva import simulate_steps
 
     steps = simulate_steps(seed=3)
     assert characterize(steps).problems == []

@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bayescal.film import fit_film, load_film_spec, simulate_film, table1_check, uncertainty_budget_film
+from bayescal.film.model import fit_film, load_film_spec, simulate_film, table1_check, uncertainty_budget_film
 
 from .conftest import MODELS
 
@@ -96,7 +96,7 @@ def test_film_cli(tmp_path, capsys):
 
 
 def test_exposure_conversion_eq11():
-    from bayescal.film import convert_exposure
+    from bayescal.film.model import convert_exposure
 
     # half the exposure time needs twice the radiance for the same density; one stop wider (x sqrt 2) half
     assert convert_exposure(1.0, 0.01, 0.005, 0.25, 0.25) == pytest.approx(2.0)

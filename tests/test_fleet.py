@@ -25,7 +25,7 @@ from bayescal.fleet.model import (
     log_marginal,
 )
 from bayescal.fleet.units import fleet_from_frame
-from bayescal.spec import FleetSpec
+from bayescal.model.spec import FleetSpec
 from bayescal.validation.fleet import SMALL_FLEET, FleetDesign, simulate_fleet
 
 from .conftest import MODELS
@@ -279,9 +279,9 @@ def test_predictions_for_new_cameras_dates_and_drift(fitted):
 
 @pytest.mark.slow  # the command-line test saves, loads and exports a fleet in the default run
 def test_fleet_directory_round_trip_and_calibration_export(fitted, tmp_path):
-    from bayescal.calibration import Calibration, Setting
     from bayescal.fleet import FleetFit
     from bayescal.fleet.export import write_calibration
+    from bayescal.posterior.calibration import Calibration, Setting
 
     fleet, result, truth = fitted
     result.save(tmp_path / "fleet")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import bayescal as bc
-from bayescal.design import Block
+from bayescal.io.design import Block
 
 from .conftest import MODELS
 

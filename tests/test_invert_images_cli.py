@@ -9,6 +9,7 @@ import xarray as xr
 
 import bayescal as bc
 from bayescal.cli import main
+from bayescal.io.cfa import channel_map
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +56,7 @@ def test_bayer_mosaic_inversion_recovers_flat_field(calibrated, tmp_path):
     spec, sim, cal, fitdir = calibrated
     rng = np.random.default_rng(2)
     h, w, true_l = 64, 80, 12.0
-    letters = bc.images.channel_map((h, w), "RGGB")
+    letters = channel_map((h, w), "RGGB")
     img = np.zeros((h, w), np.uint16)
     for c in "RGB":
         m = letters == c

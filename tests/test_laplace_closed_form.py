@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 import bayescal as bc
-from bayescal import backends
-from bayescal.components.response import NORMAL_GAIN_SD_FACTOR
+from bayescal.inference import registry as backends
 from bayescal.inference.laplace import laplace
 from bayescal.inference.program import program_for
 from bayescal.inference.start import initial_point
+from bayescal.model.components.response import NORMAL_GAIN_SD_FACTOR
 
 
 def _linear_gaussian(seed000):

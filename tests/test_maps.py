@@ -141,7 +141,7 @@ def test_corrected_image_intervals_cover(sensor, maps, tmp_path):
 
 def test_radiance_through_a_channel_calibration_covers(sensor, maps, tmp_path):
     """With a (fixed, published-style) channel calibration the maps give radiance: L = photons / (1e5 t)."""
-    from bayescal.spec import Reference
+    from bayescal.model.spec import Reference
 
     _, truth = sensor
     new = tmp_path / "new"

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import bayescal as bc
-from bayescal.select import compare_specs, f_test_orders, order_candidates
+from bayescal.fitting.select import compare_specs, f_test_orders, order_candidates
 
 
 @pytest.fixture(scope="module")

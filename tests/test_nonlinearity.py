@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from bayescal.nonlinearity import MODELS, compare_nonlinearity, patent_baseline, simulate_curves
+from bayescal.characterization.nonlinearity import MODELS, compare_nonlinearity, patent_baseline, simulate_curves
 
 FS = 4095.0
 E = np.linspace(0.02, 0.9, 14)  # dark to near saturation

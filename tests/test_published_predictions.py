@@ -3,7 +3,7 @@
 import pytest
 
 import bayescal as bc
-from bayescal.spec import Reference
+from bayescal.model.spec import Reference
 
 SEED000_T1 = {"R": [92.71, 62.09], "G": [51.2, 30.18], "B": [60.29, 17.87]}  # Table 1, gain 1, 1/250 s
 

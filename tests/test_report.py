@@ -10,7 +10,7 @@ import pytest
 
 import bayescal as bc
 from bayescal.cli import main
-from bayescal.report import write_report
+from bayescal.report.html import write_report
 
 
 @pytest.fixture(scope="module")

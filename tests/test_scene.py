@@ -9,7 +9,7 @@ import pytest
 
 import bayescal as bc
 from bayescal.cli import main
-from bayescal.scene import choose_for_scene
+from bayescal.prediction.scene import choose_for_scene
 
 
 def _calibrations(spec, design, orders, seed=3):

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import bayescal as bc
-from bayescal.components.settings import SettingFactors
-from bayescal.misfit import group_residuals, runs_z
-from bayescal.spec import SettingsSpec
+from bayescal.fitting.misfit import group_residuals, runs_z
+from bayescal.model.components.settings import SettingFactors
+from bayescal.model.spec import SettingsSpec
 
 
 def _gain_step_off(table, factor: float, gain: float = 2.0):

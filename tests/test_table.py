@@ -17,7 +17,7 @@ def good_frame():
 
 
 def spec1():
-    return bc.ModelSpec(name="t", bits=12, reference=bc.spec.Reference(0.004))
+    return bc.ModelSpec(name="t", bits=12, reference=bc.Reference(0.004))
 
 
 def error_of(df, spec=None):

@@ -5,7 +5,7 @@ as a Gaussian) -> model, sampling (the hierarchy by NUTS) -> posterior (predicti
 drift, recalibration, per-camera calibrations) -> report.  docs/architecture.md, section 8.
 """
 
-from .posterior import FleetFit, compare_pooling, fit_fleet
-from .units import FleetTable, load_fleet_table
+from bayescal.fleet.posterior import FleetFit, compare_pooling, fit_fleet
+from bayescal.fleet.units import FleetTable, load_fleet_table
 
 __all__ = ["FleetFit", "FleetTable", "compare_pooling", "fit_fleet", "load_fleet_table"]

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..basis import response_monomials
-from ..errors import PosteriorError
-from .posterior import FleetFit, _safe
+from bayescal.errors import PosteriorError
+from bayescal.fleet.posterior import FleetFit, _safe
+from bayescal.model.basis import response_monomials
 
 __all__ = ["fleet_calibration", "write_calibration"]
 
@@ -46,7 +46,7 @@ def write_calibration(
     """
     import arviz as az
 
-    from ..io import check_output_dir, staged_directory, write_json_atomic
+    from bayescal.io.files import check_output_dir, staged_directory, write_json_atomic
 
     fleet_dir = Path(fleet_dir)
     fleet = FleetFit.load(fleet_dir)

@@ -24,7 +24,7 @@ conditional, per draw.  The latent precision is block-arrowhead (one block per c
 plus the fleet-wide ``mu``, ``rho`` and sphere terms), so each evaluation costs one
 small Cholesky factor per camera and one of the global block (Schur complement).
 Quantities are standardised by the spread of the units' estimates, so one set of
-hyperpriors (:class:`~bayescal.spec.FleetSpec`) serves gains and offsets
+hyperpriors (:class:`~bayescal.model.spec.FleetSpec`) serves gains and offsets
 (docs/architecture.md, section 8).
 """
 
@@ -35,9 +35,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..spec import FleetSpec
-from .stage1 import UnitFits
-from .units import to_years
+from bayescal.fleet.stage1 import UnitFits
+from bayescal.fleet.units import to_years
+from bayescal.model.spec import FleetSpec
 
 __all__ = [
     "FleetData",

@@ -11,7 +11,7 @@
 - ``P(|gain(D) / gain(last campaign) - 1| > p)``: has the camera drifted by more
   than ``p`` by date ``D``; and the first date at which that probability passes a
   threshold (when to recalibrate);
-- a full :class:`~bayescal.calibration.Calibration` (a fit directory that
+- a full :class:`~bayescal.posterior.calibration.Calibration` (a fit directory that
   ``predict``, ``invert`` and ``plan`` read) for a camera at a date.
 """
 
@@ -26,12 +26,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import PosteriorError, SpecError
-from ..spec import ModelSpec
-from .model import FleetData, Plan, fleet_data
-from .sampling import FleetDraws, loo_of, sample_fleet
-from .stage1 import UnitFits, fit_units
-from .units import DAYS_PER_YEAR, FleetTable
+from bayescal._config import computes
+from bayescal.errors import PosteriorError, SpecError
+from bayescal.fleet.model import FleetData, Plan, fleet_data
+from bayescal.fleet.sampling import FleetDraws, loo_of, sample_fleet
+from bayescal.fleet.stage1 import UnitFits, fit_units
+from bayescal.fleet.units import DAYS_PER_YEAR, FleetTable
+from bayescal.model.spec import ModelSpec
 
 __all__ = ["FleetFit", "fit_fleet", "compare_pooling"]
 
@@ -356,7 +357,7 @@ class FleetFit:
         """Write the fleet directory (replacing ``out_dir`` whole): ``fleet.nc`` (draws and the
         stage-one summaries), ``summary.csv``, ``hyperparameters.csv``, ``units.csv``,
         ``summary.json``, and each camera's latest stage-one fit under ``cameras/``."""
-        from ..io import staged_directory, write_json_atomic
+        from bayescal.io.files import staged_directory, write_json_atomic
 
         with staged_directory(out_dir, kind="fleet") as stage:
             self._dataset().to_netcdf(stage(FLEET_FILE), engine="h5netcdf")
@@ -367,7 +368,7 @@ class FleetFit:
             if self.fits is not None:
                 import warnings
 
-                from ..errors import FitFailedWarning
+                from bayescal.errors import FitFailedWarning
 
                 for camera in self.cameras:
                     u = int(np.flatnonzero(self.units["camera"].to_numpy() == camera)[-1])
@@ -478,6 +479,7 @@ class FleetFit:
         )
 
 
+@computes
 def fit_fleet(
     fleet: FleetTable,
     spec: ModelSpec,
@@ -534,6 +536,7 @@ def fit_fleet(
     )
 
 
+@computes
 def compare_pooling(fleet: FleetTable, spec: ModelSpec, fits: UnitFits, seed: int = 0) -> pd.DataFrame:
     """No, partial and complete pooling compared by PSIS leave-one-unit-out (stage one shared).
 

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..figures import colours, png_base64, subplots
-from ..io import write_text_atomic
-from .posterior import FleetFit
+from bayescal.fleet.posterior import FleetFit
+from bayescal.io.files import write_text_atomic
+from bayescal.report.figures import colours, png_base64, subplots
 
 __all__ = ["write_fleet_report"]
 

@@ -14,9 +14,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from .._config import enable_numerics
-from ..spec import FleetSpec
-from .model import FleetData, Plan, conditional_draws, log_marginal
+from bayescal._config import computes
+from bayescal.fleet.model import FleetData, Plan, conditional_draws, log_marginal
+from bayescal.model.spec import FleetSpec
 
 __all__ = ["sample_fleet", "FleetDraws", "loo_of", "unit_log_likelihood"]
 
@@ -112,9 +112,9 @@ def _run_chains(plan: Plan, spec: FleetSpec, args: dict, seed: int) -> tuple[np.
     return z, divergences
 
 
+@computes
 def sample_fleet(data: FleetData, plan: Plan, spec: FleetSpec, seed: int = 0) -> FleetDraws:
     """Run NUTS on the scales, complete every draw, and judge the chains (R-hat, ESS, divergences)."""
-    enable_numerics()
 
     args = data.arrays()
     chains, n = spec.chains, spec.draws

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..spec import FleetSpec
-from .model import FleetData, Plan, block_scales, design_of, with_units
-from .sampling import _priors, sample_fleet
+from bayescal.fleet.model import FleetData, Plan, block_scales, design_of, with_units
+from bayescal.fleet.sampling import _priors, sample_fleet
+from bayescal.model.spec import FleetSpec
 
 __all__ = ["FleetSBC", "prior_fleet", "run_fleet_sbc"]
 

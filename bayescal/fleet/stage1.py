@@ -20,11 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..batch import FitBatch, fit_many
-from ..errors import SpecError
-from ..fit import Fit
-from ..spec import ModelSpec
-from .units import FleetTable
+from bayescal.errors import SpecError
+from bayescal.fitting.batch import FitBatch, fit_many
+from bayescal.fitting.fit import Fit
+from bayescal.fleet.units import FleetTable
+from bayescal.model.spec import ModelSpec
 
 __all__ = ["UnitFits", "fit_units", "QUANTITIES"]
 
@@ -67,7 +67,7 @@ class UnitFits:
     _batches: tuple[tuple[FitBatch, int], ...]
 
     def fit(self, u: int) -> Fit:
-        """Unit ``u``'s full stage-one :class:`~bayescal.fit.Fit`."""
+        """Unit ``u``'s full stage-one :class:`~bayescal.fitting.fit.Fit`."""
         batch, i = self._batches[u]
         return batch.fit(i)
 
@@ -92,7 +92,7 @@ def fit_units(
     """
     import pandas as pd
 
-    from ..assemble import build_model
+    from bayescal.model.assemble import build_model
 
     units = fleet.units
     groups: dict[tuple, list[int]] = {}

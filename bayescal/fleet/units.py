@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..errors import TableError
-from ..table import MeasurementTable, read_frame
+from bayescal.errors import TableError
+from bayescal.io.table import MeasurementTable, read_frame
 
 __all__ = ["FleetTable", "Unit", "load_fleet_table", "fleet_from_frame", "to_years"]
 

@@ -21,11 +21,12 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..backends import Draws, register
-from ..diagnostics import mcmc_diagnostics
-from .laplace import covariance_factor
-from .program import Program
-from .samplers import chains_dataset
+from bayescal._config import computes
+from bayescal.inference.diagnostics import mcmc_diagnostics
+from bayescal.inference.laplace import covariance_factor
+from bayescal.inference.program import Program
+from bayescal.inference.registry import Draws, register
+from bayescal.inference.samplers import chains_dataset
 
 __all__ = ["BlackjaxNutsBackend", "run_blackjax"]
 
@@ -86,6 +87,7 @@ def _compiled(program: Program, settings: tuple):
     return jax.jit(chain)
 
 
+@computes
 def run_blackjax(program: Program, data, start, cov, settings, seed: int, progress: Callable | None = None) -> Draws:
     """``settings.chains`` chains from ``start`` (jittered as the numpyro backend's are);
     ``progress(iterations_done)`` with the warmup counted once it is over."""

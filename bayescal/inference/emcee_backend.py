@@ -19,9 +19,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..data import ModelData
-from ..spec import InferenceSpec
-from .program import Program
+from bayescal._config import computes
+from bayescal.inference.program import Program
+from bayescal.model.data import ModelData
+from bayescal.model.spec import InferenceSpec
 
 __all__ = ["EmceeDraws", "run_emcee"]
 
@@ -46,6 +47,7 @@ def _log_density(program: Program):
     return jax.jit(jax.vmap(logp, in_axes=(0, None, None, None)))
 
 
+@computes
 def run_emcee(
     program: Program,
     data: ModelData,

@@ -16,8 +16,9 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ..data import ModelData
-from .program import Program
+from bayescal._config import computes
+from bayescal.inference.program import Program
+from bayescal.model.data import ModelData
 
 __all__ = [
     "LaplaceResult",
@@ -42,6 +43,7 @@ class LaplaceResult:
     positive_definite: bool
 
 
+@computes
 def find_map(program: Program, data: ModelData, z0: jax.Array | None = None, rounds: int = 4):
     """Minimise the potential with optimistix BFGS in Hessian-whitened coordinates.
 
@@ -132,12 +134,14 @@ def _batched_map(program: Program, rounds: int):
     return jax.jit(jax.vmap(one))
 
 
+@computes
 def laplace(program: Program, data: ModelData, z0: jax.Array | None = None) -> LaplaceResult:
     """Mode and Gaussian covariance (inverse Hessian) of the posterior, searched from ``z0``."""
     z_map, converged, steps = find_map(program, data, z0)
     return _gaussian_at(program, data, z_map, converged, steps, np.asarray(program.hessian(z_map, data)))
 
 
+@computes
 def laplace_many(
     program: Program, datas: list[ModelData], starts: list[jax.Array], rounds: int = 4, chunk: int = 16
 ) -> list[LaplaceResult]:
@@ -205,6 +209,7 @@ def covariance_factor(cov: np.ndarray) -> np.ndarray:
         return v * np.sqrt(w)
 
 
+@computes
 def integrated_draws(
     program: Program,
     data: ModelData,

@@ -19,8 +19,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from ..table import MeasurementTable
-from .compensated import residual_dot2, residual_horner
+from bayescal.inference.compensated import residual_dot2, residual_horner
+from bayescal.io.table import MeasurementTable
 
 __all__ = ["LinearFit", "lstsq", "polyfit", "lsq_baseline"]
 

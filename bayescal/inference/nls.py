@@ -32,6 +32,8 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from bayescal._config import computes
+
 __all__ = ["NonlinearFit", "nonlinear_lsq"]
 
 
@@ -71,6 +73,7 @@ def _solver(model: Callable) -> Callable:
 REL_OFFSET_TOL = 1e-3
 
 
+@computes
 def nonlinear_lsq(model: Callable, x: np.ndarray, y: np.ndarray, start: np.ndarray, polish: int = 3) -> NonlinearFit:
     """Fit ``y = model(beta, x) + e`` by least squares from ``start``.
 

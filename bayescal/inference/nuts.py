@@ -26,10 +26,11 @@ import jax.numpy as jnp
 import numpy as np
 from numpyro.infer.hmc import hmc
 
-from ..data import ModelData
-from ..spec import InferenceSpec
-from .laplace import covariance_factor
-from .program import Program
+from bayescal._config import computes
+from bayescal.inference.laplace import covariance_factor
+from bayescal.inference.program import Program
+from bayescal.model.data import ModelData
+from bayescal.model.spec import InferenceSpec
 
 __all__ = ["NutsDraws", "run_nuts", "run_nuts_many"]
 
@@ -108,6 +109,7 @@ def _compiled(program: Program, settings: tuple):
     return jax.jit(chain)
 
 
+@computes
 def run_nuts(
     program: Program,
     data: ModelData,
@@ -141,6 +143,7 @@ def run_nuts(
         _Progress.active = None
 
 
+@computes
 def run_nuts_many(
     program: Program,
     datas: list[ModelData],

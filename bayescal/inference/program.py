@@ -25,7 +25,8 @@ from numpyro import handlers
 from numpyro.distributions.transforms import biject_to
 from numpyro.infer.util import constrain_fn, log_likelihood, potential_energy, unconstrain_fn
 
-from ..assemble import CalibrationModel, numpyro_model
+from bayescal._config import computes
+from bayescal.model.assemble import CalibrationModel, numpyro_model
 
 __all__ = ["Program", "program_for", "program_of", "clear_program_cache"]
 
@@ -95,6 +96,7 @@ def program_for(model: CalibrationModel) -> Program:
     return program_of(numpyro_model(model.parts), model.data)
 
 
+@computes
 def program_of(model: Callable, example, obs: str = "obs") -> Program:
     """The cached program of any numpyro ``model(data)`` whose only argument is a data pytree.
 
@@ -150,10 +152,10 @@ def _build(model: Callable, example, obs: str = "obs") -> Program:
         model=model,
         z0=z0,
         unravel=unravel,
-        potential=jax.jit(potential),
-        value_and_grad=jax.jit(jax.value_and_grad(potential)),
-        hessian=jax.jit(jax.hessian(potential)),
-        constrain=jax.jit(jax.vmap(constrain_one, in_axes=(0, None))),
-        unconstrain=jax.jit(unconstrain),
-        loglik=jax.jit(jax.vmap(loglik_one, in_axes=(0, None))),
+        potential=computes(jax.jit(potential)),
+        value_and_grad=computes(jax.jit(jax.value_and_grad(potential))),
+        hessian=computes(jax.jit(jax.hessian(potential))),
+        constrain=computes(jax.jit(jax.vmap(constrain_one, in_axes=(0, None)))),
+        unconstrain=computes(jax.jit(unconstrain)),
+        loglik=computes(jax.jit(jax.vmap(loglik_one, in_axes=(0, None)))),
     )

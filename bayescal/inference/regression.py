@@ -24,10 +24,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..spec import InferenceSpec
-from .nls import nonlinear_lsq
-from .nuts import run_nuts
-from .program import Program
+from bayescal._config import computes
+from bayescal.inference.nls import nonlinear_lsq
+from bayescal.inference.nuts import run_nuts
+from bayescal.inference.program import Program
+from bayescal.model.spec import InferenceSpec
 
 __all__ = ["RegressionPosterior", "regression_posterior", "linear_model"]
 
@@ -82,15 +83,16 @@ def _program(model: Callable, p: int) -> Program:
         model=model,
         z0=jnp.zeros(p),
         unravel=lambda z: {"beta": z},
-        potential=jax.jit(potential),
-        value_and_grad=jax.jit(jax.value_and_grad(potential)),
-        hessian=jax.jit(jax.hessian(potential)),
-        constrain=jax.jit(jax.vmap(lambda z, data: {"beta": z}, in_axes=(0, None))),
-        unconstrain=jax.jit(lambda values, data: values["beta"]),
-        loglik=jax.jit(jax.vmap(loglik, in_axes=(0, None))),
+        potential=computes(jax.jit(potential)),
+        value_and_grad=computes(jax.jit(jax.value_and_grad(potential))),
+        hessian=computes(jax.jit(jax.hessian(potential))),
+        constrain=computes(jax.jit(jax.vmap(lambda z, data: {"beta": z}, in_axes=(0, None)))),
+        unconstrain=computes(jax.jit(lambda values, data: values["beta"])),
+        loglik=computes(jax.jit(jax.vmap(loglik, in_axes=(0, None)))),
     )
 
 
+@computes
 def regression_posterior(
     model: Callable,
     x: np.ndarray,

@@ -13,11 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from ..backends import SHIPPED, Draws, register
-from ..diagnostics import Diagnostics, mcmc_diagnostics
-from .emcee_backend import run_emcee
-from .laplace import integrated_draws, laplace_draws
-from .nuts import run_nuts
+from bayescal.inference.diagnostics import Diagnostics, mcmc_diagnostics
+from bayescal.inference.emcee_backend import run_emcee
+from bayescal.inference.laplace import integrated_draws, laplace_draws
+from bayescal.inference.nuts import run_nuts
+from bayescal.inference.registry import SHIPPED, Draws, register
 
 __all__ = [
     "LaplaceBackend",
@@ -46,7 +46,7 @@ def laplace_z(model, program, result, seed: int, extra: dict) -> np.ndarray:
 def refuse_pooled(spec) -> None:
     """The Laplace backend does not handle pooling scales (the Gaussian at the joint mode
     collapses them to zero); say so before any work."""
-    from ..errors import SpecError
+    from bayescal.errors import SpecError
 
     if spec.response.pooled or spec.dark.pooled or spec.response.gain_prior == "pooled":
         raise SpecError(

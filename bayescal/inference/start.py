@@ -12,8 +12,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ..assemble import CalibrationModel
-from .program import Program
+from bayescal.inference.program import Program
+from bayescal.model.assemble import CalibrationModel
 
 __all__ = ["initial_point"]
 

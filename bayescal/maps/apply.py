@@ -34,7 +34,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats as sstats
 
-from ..errors import TableError
+from bayescal._config import computes
+from bayescal.errors import TableError
 
 __all__ = ["MapSet", "SensorMaps", "apply_maps", "noise_model"]
 
@@ -113,7 +114,7 @@ class MapSet:
     @classmethod
     def from_dataset(cls, ds, channel: str | None = None) -> MapSet:
         """One channel's maps (``ds`` already cut to that channel's plane for a mosaic)."""
-        from .metadata import channel_attrs
+        from bayescal.maps.metadata import channel_attrs
 
         attrs = channel_attrs(ds, channel)
 
@@ -161,7 +162,7 @@ class SensorMaps:
 
     @classmethod
     def from_dataset(cls, ds) -> SensorMaps:
-        from ..cfa import planes
+        from bayescal.io.cfa import planes
 
         channels = list(ds.attrs.get("channels", ["M"]))
         step, layout = planes(ds.attrs.get("cfa") or None, channels[0])
@@ -208,6 +209,7 @@ def _kernel(parts: bool):
     return jax.jit(kernel)
 
 
+@computes
 def apply_maps(
     maps,
     image: np.ndarray,
@@ -360,8 +362,8 @@ def _apply_plane(
 
 def _radiance_lut(m: MapSet, cal, channel, setting, exposure_s, grid):
     """Channel signal above dark -> radiance median and systematic bounds, on a uniform grid."""
-    from ..calibration import Setting
-    from ..invert import invert
+    from bayescal.posterior.calibration import Setting
+    from bayescal.prediction.invert import invert
 
     cal.channel_index(channel)  # a clear error for a channel the calibration does not hold
     setting = setting or Setting(exposure_s, cal.reference.gain, cal.reference.tdi_stages)

@@ -25,9 +25,9 @@ import os
 
 import numpy as np
 
-from .metadata import provenance, variable_attrs
-from .model import SensorModel, block_maps, fit_map_model
-from .stacks import Manifest, load_manifest
+from bayescal.maps.metadata import provenance, variable_attrs
+from bayescal.maps.model import SensorModel, block_maps, fit_map_model
+from bayescal.maps.stacks import Manifest, load_manifest
 
 __all__ = ["build_maps", "lazy_maps"]
 

@@ -14,11 +14,11 @@ import json
 
 import numpy as np
 
-from .._version import __version__
-from ..errors import SpecError
-from .model import DEFECT_CODES, MapModel, SensorModel
-from .population import combination_spread
-from .stacks import Manifest
+from bayescal._version import __version__
+from bayescal.errors import SpecError
+from bayescal.maps.model import DEFECT_CODES, MapModel, SensorModel
+from bayescal.maps.population import combination_spread
+from bayescal.maps.stacks import Manifest
 
 __all__ = ["variable_attrs", "provenance", "channel_attrs"]
 

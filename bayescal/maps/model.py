@@ -14,9 +14,9 @@ import numpy as np
 import pandas as pd
 from scipy import stats as sstats
 
-from ..cfa import planes as cfa_planes
-from ..errors import SpecError, TableError
-from .population import (
+from bayescal.errors import SpecError, TableError
+from bayescal.io.cfa import planes as cfa_planes
+from bayescal.maps.population import (
     LinearDesign,
     NoiseMixture,
     Population,
@@ -25,7 +25,7 @@ from .population import (
     pixel_posterior,
     spread_uncertainty,
 )
-from .stacks import Manifest, block_statistics
+from bayescal.maps.stacks import Manifest, block_statistics
 
 __all__ = ["MapModel", "SensorModel", "DEFECT_CODES", "fit_map_model", "block_maps"]
 

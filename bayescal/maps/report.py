@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..figures import png_base64, subplots
-from ..io import write_text_atomic
-from ..report_text import markdown_table
+from bayescal.io.files import write_text_atomic
+from bayescal.report.figures import png_base64, subplots
+from bayescal.report.text import markdown_table
 
 __all__ = ["maps_report"]
 
@@ -50,8 +50,8 @@ def _histogram(da, bins: np.ndarray) -> np.ndarray:
 
 def _channel_views(ds) -> list[tuple[str, object, dict]]:
     """``[(channel, its pixels' maps, its population attributes)]`` (a mosaic: each colour's first plane)."""
-    from ..cfa import planes
-    from .metadata import channel_attrs
+    from bayescal.io.cfa import planes
+    from bayescal.maps.metadata import channel_attrs
 
     channels = list(ds.attrs.get("channels", ["M"]))
     step, layout = planes(ds.attrs.get("cfa") or None, channels[0])

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import TableError
+from bayescal.errors import TableError
 
 __all__ = [
     "Manifest",

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import TableError
-from ..io import staged_directory
-from .build import lazy_maps
-from .model import SensorModel, block_maps, fit_map_model
-from .stacks import Manifest, load_manifest
+from bayescal.errors import TableError
+from bayescal.io.files import staged_directory
+from bayescal.maps.build import lazy_maps
+from bayescal.maps.model import SensorModel, block_maps, fit_map_model
+from bayescal.maps.stacks import Manifest, load_manifest
 
 __all__ = ["write_maps", "make_maps", "read_maps"]
 

@@ -6,6 +6,6 @@ components, so it cannot share their assumptions, and it carries realistic
 departures from them that can be switched on one by one.
 """
 
-from .bench import BenchCamera, Departures, Realisation, simulate_bench, with_held_out
+from bayescal.validation.bench import BenchCamera, Departures, Realisation, simulate_bench, with_held_out
 
 __all__ = ["BenchCamera", "Departures", "Realisation", "simulate_bench", "with_held_out"]

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pandas as pd
 
-from .bench import BenchCamera, Departures, simulate_bench
+from bayescal.validation.bench import BenchCamera, Departures, simulate_bench
 
 __all__ = ["FleetDesign", "SMALL_FLEET", "simulate_fleet"]
 

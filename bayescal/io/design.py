@@ -1,0 +1,122 @@
+"""Experiment designs and simulation truths (TOML in ``models/``).
+
+A design lists what a lab measures: sphere levels, the exposure/gain/TDI
+combinations at which they are measured (seed 000 Fig. 3), dark settings, and
+how many frames and pixels are averaged per row (seed 000: 20 frames).  The
+``[truth]`` table describes a camera for :func:`bayescal.simulate`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from bayescal.errors import SpecError
+from bayescal.io.toml import build, read_toml
+
+__all__ = ["Design", "Block", "Truth", "load_design"]
+
+
+@dataclass(frozen=True)
+class Block:
+    """A set of settings measured together (full factorial within the block)."""
+
+    exposure_s: tuple[float, ...]
+    gain: tuple[float, ...] = (1.0,)
+    tdi_stages: tuple[float, ...] = (1.0,)
+    levels: tuple[int, ...] | Literal["all"] | None = None  # indices into Design.levels; None or "all": all
+    temperature_c: tuple[float, ...] | None = None  # sensor temperatures (None: not recorded)
+
+    def __post_init__(self) -> None:
+        if self.levels == "all":
+            object.__setattr__(self, "levels", None)
+        if not self.exposure_s:
+            raise SpecError("a block needs at least one exposure_s")
+        if not self.temperature_c:
+            object.__setattr__(self, "temperature_c", None)
+
+    def settings(self) -> list[tuple[float, float, float]]:
+        """Every (exposure, gain, tdi) combination of the block."""
+        return list(itertools.product(self.exposure_s, self.gain, self.tdi_stages))
+
+
+@dataclass(frozen=True)
+class Truth:
+    """A camera with known parameters, for simulation.
+
+    Attributes
+    ----------
+    response : dict
+        Channel -> ``[A1, ..., Ap]``: monomial coefficients of the signal (DN)
+        in the *true* stimulus at the spec's reference setting.
+    dark_offset : dict
+        Gain factor -> offset in DN at zero exposure (for a proportional dark
+        model, the offset at the reference gain under key of that gain).
+    dark_slope : dict
+        Gain factor -> dark slope in DN/s (missing gains: 0).
+    dark_proportional : bool
+        Offsets scale with gain / reference gain (seed 002 eq. 12).
+    channel_offset : dict
+        Channel -> extra offset in DN (seed 000: small).
+    sphere_scale : float or None
+        True/nominal radiance scale; None draws ``exp(N(0, common_rel))``.
+    level_rel : float
+        Standard deviation of the per-level relative errors drawn.
+    """
+
+    response: dict[str, tuple[float, ...]]
+    dark_offset: dict[float, float]
+    dark_slope: dict[float, float] = field(default_factory=dict)
+    dark_proportional: bool = False
+    channel_offset: dict[str, float] = field(default_factory=dict)
+    read_noise_dn: float = 2.0
+    conversion_gain: float = 0.1
+    excess_dn: float = 0.0
+    prnu: float = 0.01
+    sphere_scale: float | None = None
+    common_rel: float = 0.03
+    level_rel: float = 0.0
+    dark_doubling_c: float | None = None  # dark current doubles every this many degC (None: no T effect)
+    temperature_ref_c: float = 20.0
+
+
+@dataclass(frozen=True)
+class Design:
+    """What is measured: channels, sphere levels, settings blocks and dark settings."""
+
+    channels: tuple[str, ...]
+    levels: tuple[float, ...]
+    illuminated: tuple[Block, ...]
+    dark: tuple[Block, ...] = ()
+    n_frames: int = 1
+    n_pixels: int = 1
+    spec: str | None = None
+    truth: Truth | None = None
+
+    def __post_init__(self) -> None:
+        if not self.channels or not self.levels:
+            raise SpecError("a design needs channels and levels")
+        if self.n_frames < 1 or self.n_pixels < 1:
+            raise SpecError("n_frames and n_pixels must be >= 1")
+        for block in self.illuminated:
+            for i in block.levels or ():
+                if not 0 <= i < len(self.levels):
+                    raise SpecError(f"level index {i} outside 0..{len(self.levels) - 1}")
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str = "<design>") -> Design:
+        """Parse the TOML layout (see ``models/seed000_design.toml``); every key is checked."""
+        return build(cls, d, source)
+
+
+def load_design(path: str | os.PathLike) -> Design:
+    """Load a :class:`Design` (with optional truth) from TOML."""
+    path = Path(path)
+    design = Design.from_dict(read_toml(path, "design (TOML)"), source=str(path))
+    if design.spec is not None and not Path(design.spec).is_absolute():
+        design = dataclasses.replace(design, spec=str(path.parent / design.spec))
+    return design

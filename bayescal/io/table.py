@@ -1,0 +1,281 @@
+"""Validated measurement tables (one row per measured condition and channel).
+
+A row is the mean DN of a region of interest at one sphere level, exposure
+time, gain, TDI stage count and temperature, for one colour channel (seed 000
+section 4.3; seed 002 section 4.3).  Dark rows have zero stimulus.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bayescal.errors import TableError
+from bayescal.io.files import atomic_path, read_text
+
+__all__ = ["MeasurementTable", "load_table", "read_frame", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
+
+STIMULUS_COLUMNS = ("radiance", "irradiance")
+STIMULUS_UNITS = {"radiance": "W m^-2 sr^-1", "irradiance": "W m^-2"}
+REQUIRED_COLUMNS = ("channel", "exposure_s", "gain", "dn_mean")
+#: optional column -> default (None: stays absent when not given)
+OPTIONAL_COLUMNS: dict[str, float | None] = {
+    "level": None,
+    "tdi_stages": 1.0,
+    "temperature_c": None,
+    "time_s": None,
+    "n_frames": 1.0,
+    "n_pixels": 1.0,
+    "dn_var": None,
+    "radiance_u_rel": None,
+    "replicate": 0.0,
+}
+_POSITIVE = ("exposure_s", "gain", "tdi_stages", "n_frames", "n_pixels")
+_NONNEGATIVE = ("radiance", "irradiance", "radiance_u_rel")
+_CONDITION = ("channel", "stimulus", "exposure_s", "gain", "tdi_stages", "temperature_c", "level", "replicate")
+
+
+@dataclass(frozen=True)
+class MeasurementTable:
+    """A validated table of calibration measurements.
+
+    Build one with :func:`load_table` or :meth:`from_frame`; the constructor
+    assumes a frame that was already validated.
+
+    Attributes
+    ----------
+    frame : pandas.DataFrame
+        Normalised columns: ``channel`` (str), ``stimulus`` (radiance or
+        irradiance, float), ``exposure_s``, ``gain``, ``dn_mean``,
+        ``tdi_stages``, ``n_frames``, ``n_pixels``, ``replicate``, ``level``
+        (str id; dark rows "dark"), and the optional columns that were given.
+    stimulus : {"radiance", "irradiance"}
+        Which stimulus the ``stimulus`` column holds (seed 000 uses entrance-
+        pupil radiance, seed 002 focal-plane irradiance).
+    source : str
+        Where the table came from (for error messages and provenance).
+    """
+
+    frame: pd.DataFrame
+    stimulus: str
+    source: str = "<frame>"
+
+    @classmethod
+    def from_frame(cls, df: pd.DataFrame, *, source: str = "<frame>") -> MeasurementTable:
+        """Validate a DataFrame and return a table; raise :class:`TableError` otherwise."""
+        return cls(*_validate(df, source), source=source)
+
+    @property
+    def unit(self) -> str:
+        """Unit of the stimulus column."""
+        return STIMULUS_UNITS[self.stimulus]
+
+    @property
+    def channels(self) -> list[str]:
+        """Channels in order of first appearance."""
+        return list(dict.fromkeys(self.frame["channel"]))
+
+    @property
+    def is_dark(self) -> np.ndarray:
+        """Boolean mask of dark rows (zero stimulus)."""
+        return self.frame["stimulus"].to_numpy() == 0.0
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+    def to_frame(self) -> pd.DataFrame:
+        """The table in its file layout (``stimulus`` renamed back to its unit's column)."""
+        return self.frame.rename(columns={"stimulus": self.stimulus})
+
+    def write_csv(self, path: str | os.PathLike) -> None:
+        """Write the table as CSV, atomically."""
+        with atomic_path(path) as tmp:
+            self.to_frame().to_csv(tmp, index=False, float_format="%.10g")
+
+
+def load_table(path: str | os.PathLike) -> MeasurementTable:
+    """Read and validate a CSV or Parquet measurement table.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.csv`` (comma separated, header row) or ``.parquet``.
+
+    Raises
+    ------
+    TableError
+        Naming the row and column of the first problem found.
+    """
+    return MeasurementTable.from_frame(read_frame(path), source=str(path))
+
+
+def read_frame(path: str | os.PathLike) -> pd.DataFrame:
+    """The raw rows of a CSV (every cell a string) or Parquet file, before validation.
+
+    Raises
+    ------
+    TableError
+        The file is missing, empty, not text, or not a well-formed table.
+    """
+    import io
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".parquet":
+        if not path.is_file():
+            raise TableError(f"no such file: {path}" if not path.exists() else f"{path} is not a file")
+        try:
+            return pd.read_parquet(path)
+        except Exception as exc:  # pyarrow raises its own types for every kind of corrupt file
+            raise TableError(f"{path} is not a readable Parquet file ({type(exc).__name__}: {exc})") from None
+    if suffix in (".csv", ".txt"):
+        text = read_text(path, TableError, "measurement table (CSV)")
+        try:
+            return pd.read_csv(io.StringIO(text), dtype=str, skipinitialspace=True, comment="#")
+        except pd.errors.EmptyDataError as exc:
+            raise TableError(f"{path} is empty; expected a header row and data rows") from exc
+        except pd.errors.ParserError as exc:
+            raise TableError(f"{path} is not a well-formed CSV table: {exc}") from None
+    raise TableError(f"{path}: expected a .csv or .parquet file, got '{suffix}'")
+
+
+def _validate(df: pd.DataFrame, source: str) -> tuple[pd.DataFrame, str]:
+    df = df.copy()
+    df.columns = [str(c).strip() for c in df.columns]
+    if len(df) == 0:
+        raise TableError(f"{source} has no data rows")
+    for col in REQUIRED_COLUMNS:
+        if col not in df.columns:
+            raise TableError(
+                f"missing required column; expected columns {', '.join(REQUIRED_COLUMNS)} "
+                f"and one of radiance/irradiance, found {', '.join(df.columns)}",
+                column=col,
+            )
+    given = [c for c in STIMULUS_COLUMNS if c in df.columns]
+    if len(given) != 1:
+        raise TableError(
+            "expected exactly one stimulus column, 'radiance' (W m^-2 sr^-1) or "
+            f"'irradiance' (W m^-2); found {given or 'neither'}",
+            column="radiance",
+        )
+    stimulus = given[0]
+    df = df.rename(columns={stimulus: "stimulus"})
+    out = pd.DataFrame(index=range(len(df)))
+    out["channel"] = _channel_column(df["channel"])
+    for col in ("stimulus", "exposure_s", "gain", "dn_mean"):
+        out[col] = _numeric(df[col], stimulus if col == "stimulus" else col)
+    for col, default in OPTIONAL_COLUMNS.items():
+        if col == "level":
+            continue
+        if col in df.columns:
+            out[col] = _numeric(df[col], col)
+        elif default is not None:
+            out[col] = default
+    _check_ranges(out, stimulus)
+    out["level"] = _levels(df, out)
+    _check_duplicates(out, stimulus)
+    return out, stimulus
+
+
+def _channel_column(col: pd.Series) -> pd.Series:
+    values = col.astype("string").str.strip()
+    for i, v in enumerate(values):
+        if pd.isna(v) or v == "":
+            raise TableError("empty channel name; expected e.g. R, G, B or a band name", row=i + 1, column="channel")
+    return values.astype(str)
+
+
+def _numeric(col: pd.Series, name: str) -> pd.Series:
+    as_str = col.astype("string").str.strip()
+    num = pd.to_numeric(as_str, errors="coerce")
+    for i, (raw, val) in enumerate(zip(as_str, num, strict=True)):
+        if pd.isna(raw) or raw == "" or str(raw).lower() == "nan":
+            raise TableError("missing value (empty or NaN); expected a number", row=i + 1, column=name)
+        if pd.isna(val):
+            raise TableError(f"'{raw}' is not a number", row=i + 1, column=name)
+        if not np.isfinite(val):
+            raise TableError(f"'{raw}' is not finite; expected a finite number", row=i + 1, column=name)
+    return num.astype(float)
+
+
+def _check_ranges(out: pd.DataFrame, stimulus: str) -> None:
+    for col in _POSITIVE:
+        if col in out:
+            bad = np.flatnonzero(out[col].to_numpy() <= 0)
+            if bad.size:
+                raise TableError(f"{out[col].iloc[bad[0]]:g} is not positive; expected > 0", row=bad[0] + 1, column=col)
+    for col in _NONNEGATIVE:
+        key = "stimulus" if col == stimulus else col
+        if key in out and (col == stimulus or col not in STIMULUS_COLUMNS):
+            bad = np.flatnonzero(out[key].to_numpy() < 0)
+            if bad.size:
+                raise TableError(
+                    f"{out[key].iloc[bad[0]]:g} is negative; expected >= 0 (dark rows have 0)",
+                    row=bad[0] + 1,
+                    column=col,
+                )
+    bad = np.flatnonzero(out["dn_mean"].to_numpy() < 0)
+    if bad.size:
+        raise TableError(
+            f"{out['dn_mean'].iloc[bad[0]]:g} is negative; expected the camera's raw mean output in DN (>= 0), "
+            "not dark-subtracted values (dark rows are part of the table)",
+            row=bad[0] + 1,
+            column="dn_mean",
+        )
+    if "dn_var" in out:
+        bad = np.flatnonzero(out["dn_var"].to_numpy() <= 0)
+        if bad.size:
+            raise TableError("temporal variance must be > 0 (DN^2)", row=bad[0] + 1, column="dn_var")
+    for col in ("n_frames", "n_pixels", "tdi_stages"):
+        v = out[col].to_numpy()
+        bad = np.flatnonzero(v != np.round(v))
+        if bad.size:
+            raise TableError(f"{v[bad[0]]:g} is not a whole number", row=bad[0] + 1, column=col)
+
+
+def _levels(df: pd.DataFrame, out: pd.DataFrame) -> pd.Series:
+    """Sphere level ids: given, or one per distinct stimulus value; unlabelled dark rows -> 'dark'."""
+    dark = out["stimulus"].to_numpy() == 0
+    if "level" in df.columns:
+        ids = df["level"].astype("string").str.strip()
+        for i, v in enumerate(ids):
+            if not dark[i] and (pd.isna(v) or v == ""):
+                raise TableError("missing sphere level id for an illuminated row", row=i + 1, column="level")
+        ids = ids.fillna("").astype(str)
+        # one level must not carry two different stimulus values
+        lit = out.loc[~dark].assign(level=ids[~dark])
+        spread = lit.groupby("level")["stimulus"].agg(["min", "max"])
+        for level, (lo, hi) in spread.iterrows():
+            if not np.isclose(lo, hi, rtol=1e-9, atol=0):
+                row = int(lit.index[lit["level"] == level][0]) + 1
+                raise TableError(
+                    f"sphere level '{level}' has two stimulus values ({lo:g} and {hi:g}); "
+                    "expected one value per level (channels of one level see the same sphere setting)",
+                    row=row,
+                    column="level",
+                )
+        # dark rows keep the user's labels (two dark frames of one setting may be 'dark0' and 'dark1')
+        return ids.where(~dark | (ids != ""), "dark")
+    ids = out["stimulus"].map(lambda v: f"L{v:.10g}")
+    return ids.where(~dark, "dark")
+
+
+def _check_duplicates(out: pd.DataFrame, stimulus: str) -> None:
+    key_cols = [c for c in _CONDITION if c in out]
+    first_seen: dict[tuple, int] = {}
+    for i, key in enumerate(out[key_cols].itertuples(index=False, name=None)):
+        if key in first_seen:
+            j = first_seen[key]
+            a, b = out["dn_mean"].iloc[j], out["dn_mean"].iloc[i]
+            what = "repeats" if a == b else f"conflicts with (dn_mean {a:g} vs {b:g})"
+            raise TableError(
+                f"this row {what} row {j + 1}: same channel, {stimulus}, exposure, gain, TDI stages, "
+                "temperature and level; expected one row per condition (add a 'replicate' column for repeats)",
+                row=i + 1,
+                column="dn_mean",
+            )
+        first_seen[key] = i

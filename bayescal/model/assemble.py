@@ -1,0 +1,146 @@
+"""Assemble a numpyro model from components (docs/architecture.md, section 3).
+
+The model function is built once per *structure* (the components, which are
+hashable) and takes the data pytree as its only argument, so one compiled
+program serves every dataset of the same shape.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import numpyro
+
+from bayescal.io.table import MeasurementTable
+from bayescal.model.components import Dark, Noise, Response, Saturation, SettingFactors, Sphere
+from bayescal.model.components.settings import KINDS
+from bayescal.model.data import Layout, ModelData, prepare
+from bayescal.model.spec import ModelSpec
+
+__all__ = ["Parts", "CalibrationModel", "build_model"]
+
+
+@dataclass(frozen=True)
+class Parts:
+    """The components of one model structure (hashable: a cache key)."""
+
+    response: Response
+    dark: Dark
+    noise: Noise
+    sphere: Sphere
+    saturation: Saturation
+    settings: SettingFactors
+
+    @classmethod
+    def from_spec(cls, spec: ModelSpec, layout: Layout, level_sigma: np.ndarray) -> Parts:
+        """Pick and configure the components the spec asks for."""
+        n_levels = len(layout.levels)
+        return cls(
+            response=Response(spec.response, len(layout.channels)),
+            dark=Dark(spec.dark, len(layout.channels), len(layout.gain_values), layout.dn_scale),
+            noise=Noise(spec.noise, layout.dn_scale),
+            sphere=Sphere(spec.sphere, n_levels, bool(np.any(level_sigma > 0))),
+            saturation=Saturation(spec.saturation),
+            settings=_settings(spec, layout),
+        )
+
+    def describe(self) -> list[str]:
+        """Human-readable list of what the model contains."""
+        r, d, n, s = self.response, self.dark, self.noise, self.sphere
+        items = [f"response: order {r.spec.order}" + (", pooled nonlinearity" if r.n_terms and r.spec.pooled else "")]
+        items.append(
+            f"dark: {d.spec.gain_dependence}"
+            + (", exposure slope" if d.spec.exposure_slope else "")
+            + (", drift over the run" if d.spec.drift else "")
+        )
+        items.append(
+            f"noise: {n.spec.kind}" + (f", excess (scale {n.spec.excess_dn:g} DN)" if n.spec.excess_dn else "")
+        )
+        items.append(
+            f"sphere: common {s.spec.common_rel:.1%} folded in"
+            + (f", {s.n_levels} level errors" if s.per_level else "")
+        )
+        items.append("saturation: censored" if self.saturation.spec.censor else "saturation: not modelled")
+        active = self.settings.active()
+        sizes = dict(self.settings.sizes)
+        items.append(
+            "settings: "
+            + (
+                ", ".join(
+                    f"{k} factors ({sizes[k]} values, tolerance {getattr(self.settings.spec, KINDS[k][2]):.1%})"
+                    for k in active
+                )
+                if active
+                else "exact (nominal)"
+            )
+        )
+        return items
+
+
+def _settings(spec: ModelSpec, layout: Layout) -> SettingFactors:
+    ref = {"gain": spec.reference.gain, "exposure": spec.reference.exposure_s, "tdi": spec.reference.tdi_stages}
+    sizes, refs = [], []
+    for kind in KINDS:
+        values = np.asarray(layout.setting_values(kind))
+        match = np.flatnonzero(np.isclose(values, ref[kind], rtol=1e-9, atol=0))
+        sizes.append((kind, int(values.size)))
+        refs.append((kind, int(match[0]) if match.size else -1))
+    return SettingFactors(spec.settings, tuple(sizes), tuple(refs))
+
+
+@lru_cache(maxsize=64)
+def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
+    """The numpyro model for one structure (cached, so compilations are reused)."""
+
+    def model(data: ModelData) -> None:
+        gain, eta = parts.response.sample()
+        multiplier = parts.sphere.sample(data) * parts.settings.sample(data)
+        signal = numpyro.deterministic(
+            "row_signal", parts.response.signal(gain, eta, data.u * multiplier, data.channel)
+        )
+        offset = parts.dark.sample(data)
+        var_mean = parts.noise.sample(data, signal)
+        var_pix = parts.noise.nominal_pixel_variance(data, signal)
+        parts.saturation.observe(data, offset + signal, signal, var_pix, var_mean)
+
+    return model
+
+
+@dataclass(frozen=True)
+class CalibrationModel:
+    """A spec, a prepared dataset and the assembled numpyro model."""
+
+    spec: ModelSpec
+    table: MeasurementTable
+    data: ModelData
+    layout: Layout
+    parts: Parts
+
+    @property
+    def model(self) -> Callable[[ModelData], None]:
+        """The numpyro model function (data is its argument)."""
+        return numpyro_model(self.parts)
+
+    @property
+    def structure_key(self) -> tuple:
+        """What determines the compiled program: components and array shapes."""
+        return (self.parts, self.layout.shape_key)
+
+
+def resolve_for_table(spec: ModelSpec, table: MeasurementTable) -> ModelSpec:
+    """The spec with its table-dependent options decided: ``dark.drift = "auto"`` is on when the table
+    records when each row was measured (``time_s``)."""
+    if spec.dark.drift == "auto":
+        spec = spec.replace(dark={"drift": "time_s" in table.frame})
+    return spec
+
+
+def build_model(table: MeasurementTable, spec: ModelSpec) -> CalibrationModel:
+    """Validate ``table`` against ``spec`` and assemble the model."""
+    spec = resolve_for_table(spec, table)
+    data, layout = prepare(table, spec)
+    parts = Parts.from_spec(spec, layout, np.asarray(data.level_sigma))
+    return CalibrationModel(spec=spec, table=table, data=data, layout=layout, parts=parts)

@@ -1,0 +1,462 @@
+"""Model specifications: which components a calibration model is assembled from.
+
+A spec is a small tree of frozen dataclasses, loadable from TOML (``models/``)
+or built in Python.  Turning a component off (``order = 1``,
+``per_level_rel = 0``, ``excess_dn = 0``, ``censor = false``) removes its
+parameters from the model: model only what the scene needs (docs/architecture.md
+section 1).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from bayescal.errors import SpecError
+from bayescal.io.toml import build, dumps, read_toml
+
+__all__ = [
+    "ModelSpec",
+    "Reference",
+    "ResponseSpec",
+    "DarkSpec",
+    "NoiseSpec",
+    "SphereSpec",
+    "SaturationSpec",
+    "SettingsSpec",
+    "InferenceSpec",
+    "FleetSpec",
+    "load_spec",
+]
+
+
+@dataclass(frozen=True)
+class Reference:
+    """Setting at which the papers' monomial coefficients DN = A0 + A1 L + ... are reported.
+
+    Seed 000 Table 1 uses gain 1, 1/250 s; seed 002 eq. 9-10 use M = 48,
+    T_int = 105 us, g = 1.
+    """
+
+    exposure_s: float
+    gain: float = 1.0
+    tdi_stages: float = 1.0
+
+
+@dataclass(frozen=True)
+class ResponseSpec:
+    """Polynomial response in the effective stimulus x = L t M g (seeds 000 eq. 5, 002 eq. 6/11).
+
+    ``order`` 1 is linear; order p adds a relative nonlinearity of degree p-1
+    in the linear signal (fraction of full scale), ``DN = S (1 + n(S))`` with
+    ``S = G x`` (docs/architecture.md, section 2).  ``pooled`` partially pools the
+    nonlinearity across channels (it is a property of the sense node and ADC,
+    shared by all colours); ``gain_prior = "pooled"`` also pools the
+    per-channel log gains.  Pooling is off by default: NUTS does not yet
+    sample the pooled models (the Laplace whitening taken at the mode
+    degenerates in the pooling scales; a fit reports R-hat ~2 and fails
+    loudly), and the Laplace backend refuses them.  Channels are pooled by
+    the fleet hierarchy instead (:class:`FleetSpec`, ``bayescal fleet``), which
+    integrates its scales.
+
+    Priors, in the model's scaled units (docs/architecture.md, section 5): the gain ``G``
+    is the linear signal at the brightest stimulus of the table as a
+    fraction of full scale, log-normal with median ``gain_prior_median``
+    and log-sd ``gain_prior_log_sd`` (``"normal"``: Normal(median,
+    10 median), nearly flat); each nonlinearity coefficient is
+    Normal(0, ``nonlinearity_prior_sd``).  The defaults are weakly
+    informative; a lab that knows its camera class can say so (the SBC runs
+    do, see :mod:`bayescal.sbc`).
+    """
+
+    order: int = 1
+    pooled: bool = False
+    gain_prior: Literal["lognormal", "normal", "pooled"] = "lognormal"
+    gain_prior_median: float = 0.5
+    gain_prior_log_sd: float = 2.0
+    nonlinearity_prior_sd: float = 0.1
+
+
+@dataclass(frozen=True)
+class DarkSpec:
+    """Offset/dark signal: per gain setting, linear in exposure (seed 000 section 5.1).
+
+    ``gain_dependence = "proportional"`` makes the offset scale with the gain
+    factor instead (seed 002 eq. 12, DN = g (... + 28.72)), which also
+    predicts unmeasured gains.  ``pooled`` partially pools the channel
+    offsets (seed 000: channel colour barely matters for dark); off by
+    default, see :class:`ResponseSpec`.
+
+    ``temperature``: the dark current (the exposure slope) doubles every
+    ``T_d`` degC, ``slope(T) = slope(T_ref) 2^((T - T_ref) / T_d)`` (seed 002:
+    about 7 degC), with ``T_d`` log-normal around ``doubling_c`` (relative sd
+    ``doubling_rel_sd``); the table needs a ``temperature_c`` column.
+
+    ``drift``: the dark level drifts linearly over the measurement run (the
+    sensor warming up): ``offset + d * time``, one drift ``d`` (DN over the
+    whole run, prior Normal(0, ``drift_prior_dn``)) shared by every channel and
+    gain; needs a ``time_s`` column.  Offsets then refer to the start of the
+    run.  Without it a drift is absorbed by the dark slope and the setting
+    factors, and ``A0`` is silently biased (validation benchmark).  The
+    default, ``"auto"``, fits the drift whenever the table has ``time_s``.
+
+    Priors (fractions of full scale): each offset Normal(``offset_prior_mean``,
+    ``offset_prior_sd``), each dark slope (per longest exposure of the table)
+    Normal(0, ``slope_prior_sd``).
+    """
+
+    gain_dependence: Literal["per_setting", "proportional"] = "per_setting"
+    exposure_slope: bool = True
+    pooled: bool = False
+    temperature: bool = False
+    temperature_ref_c: float = 20.0
+    doubling_c: float = 7.0
+    doubling_rel_sd: float = 0.4
+    offset_prior_mean: float = 0.05
+    offset_prior_sd: float = 0.25
+    slope_prior_sd: float = 0.05
+    drift: Literal[True, False, "auto"] = "auto"
+    drift_prior_dn: float = 5.0
+
+
+@dataclass(frozen=True)
+class NoiseSpec:
+    """Noise of a row's mean DN (seed 000 eq. 3: N2, N3; seed 002 section 2).
+
+    ``kind = "physical"``: per-pixel variance ``(g r)^2 + K g S + 1/12`` (read
+    noise ``r`` in DN at the reference gain, conversion gain ``K`` in DN/e- at
+    the reference gain, quantisation), divided by ``n_frames * n_pixels``.
+    ``r`` and ``K`` are fixed (from photon transfer): region means carry
+    almost no information about them.  ``kind = "measured"``: the table's
+    ``dn_var`` column is the per-pixel temporal variance.  ``excess_dn`` is the half-normal scale of an extra
+    per-row scatter (lamp drift, model error); 0 turns it off.
+    """
+
+    kind: Literal["physical", "measured"] = "physical"
+    read_noise_dn: float = 2.0
+    conversion_gain: float = 0.1
+    excess_dn: float = 5.0
+
+
+@dataclass(frozen=True)
+class SphereSpec:
+    """Integrating-sphere radiance uncertainty (seed 002 section 4.3: below 3 %).
+
+    ``common_rel``: relative standard uncertainty of the sphere's scale,
+    common to every level; it is exactly degenerate with the gains and is
+    folded in after fitting (docs/architecture.md, section 4).  ``per_level_rel``:
+    relative standard uncertainty of each level's reading, shared by all
+    channels and settings at that level, sampled non-centred (0 turns it off;
+    a ``radiance_u_rel`` column overrides it per level).
+    """
+
+    common_rel: float = 0.03
+    per_level_rel: float = 0.0
+
+
+@dataclass(frozen=True)
+class SaturationSpec:
+    """Clipping at full scale 2^bits - 1 (seed 000 drops a clipped red point by hand).
+
+    With ``censor`` on, rows whose mean reads at or above full scale minus
+    ``margin_dn`` are right-censored.  A row whose pixels partly clip reads
+    below its unclipped mean by a loss that depends on the pixels' spread
+    (:mod:`bayescal.model.components.saturation`).  With ``partial = "window"`` (the
+    default) the loss is bracketed: between that of the temporal noise alone
+    and that at a generous ``prnu_bound`` (three times the typical 1 %).  With
+    ``partial = "model"`` it is computed at the ``prnu`` fraction (state the
+    camera's, e.g. from ``bayescal characterize``), or, with ``learn_prnu``,
+    at a fraction learned from the rows near full scale (log-normal prior of
+    median ``prnu`` and log-sd ``prnu_log_sd``).  On the validation bench a
+    3 % PRNU stated as 1 % under-covered A0/A1 at 0.85 with ``"model"``; the
+    learned fraction read ~2.6 %, but the near-clipped rows, which fit the
+    Gaussian tail of the pixel values to ~0.1 DN, put a sharp wall on it where
+    NUTS left a divergent transition after its retry in 4 of 20 clean fits.
+    """
+
+    censor: bool = True
+    margin_dn: float = 0.5
+    prnu: float = 0.01
+    learn_prnu: bool = False
+    prnu_log_sd: float = 1.0
+    partial: Literal["window", "model"] = "window"
+    prnu_bound: float = 0.03
+
+
+@dataclass(frozen=True)
+class SettingsSpec:
+    """How far a camera's settings may sit from their labels (relative standard deviations).
+
+    The effective gain of each gain step, the effective exposure of each
+    exposure setting and the effective factor of each TDI stage count are
+    random variables around their nominal values, partially pooled per kind
+    (:mod:`bayescal.model.components.settings`).  Each tolerance is the prior mean of
+    that kind's spread of log factors: the lab's statement of how exact its
+    settings are (0: exact, the factors are left out).  The defaults, 7 % for
+    every kind, are the RMS of the log departures the source documents
+    measured: at 1/100 s seed 000's red slope was 5.2 % above the one derived
+    from 1/250 s (Table 2), and seed 002's settings chosen by eq. 12 read 6.6 %
+    above and 8.8 % below their targets (RMS of log factors 0.070).  With 5 %
+    the held-out prediction of a setting 8.8 % low excluded the camera's
+    reading (tests/test_misspecification.py).
+    """
+
+    gain_tolerance: float = 0.07
+    exposure_tolerance: float = 0.07
+    tdi_tolerance: float = 0.07
+
+
+@dataclass(frozen=True)
+class InferenceSpec:
+    """Sampler settings and the thresholds a fit must pass (docs/architecture.md, section 4).
+
+    ``laplace_integrate``: the ``laplace`` backend integrates the excess
+    scatter numerically (one-dimensional nested Laplace) instead of fixing it
+    at the joint mode, which under-states every coefficient's sd by ~10 %.
+
+    NUTS runs in coordinates whitened by the Laplace covariance at the mode,
+    where the posterior is close to isotropic: a diagonal metric and 500
+    warmup iterations suffice there (a dense metric measured ~3x slower per
+    draw with no gain in ESS on the seed 000 model).
+
+    ``misfit_*``: when the model is judged not to fit its data
+    (:mod:`bayescal.misfit`): excess scatter over this many noise floors,
+    a group of rows whose residuals sum to more than ``misfit_group_z``
+    sds, residual runs along the signal below ``misfit_runs_z`` (0 turns a
+    check off).  ``holdout_check``: leave each setting's rows out in turn and
+    compare them with what the other rows predict (:mod:`bayescal.holdout`;
+    one warm Laplace refit per setting group, run by ``fit``).
+
+    ``retry_target_accept``: a NUTS run with divergent transitions is run
+    again (new chains) with this target acceptance, i.e. smaller steps, and
+    the retry is recorded in the diagnostics; the retry's own diagnostics
+    decide the verdict (0 turns retrying off).  On 200 simulated 8-bit,
+    2-12 DN datasets, 0.8 left 8 fits with 1-7 divergences; 0.95 left none.
+    """
+
+    chains: int = 4
+    draws: int = 1000
+    warmup: int = 500
+    target_accept: float = 0.8
+    retry_target_accept: float = 0.95
+    max_tree_depth: int = 10
+    dense_mass: bool = False
+    laplace_draws: int = 4000
+    laplace_integrate: bool = True
+    emcee_walkers: int = 0
+    emcee_steps: int = 6000
+    emcee_burn: int = 2000
+    max_rhat: float = 1.01
+    min_ess: float = 400.0
+    misfit_excess_ratio: float = 10.0
+    misfit_group_z: float = 4.0
+    misfit_runs_z: float = -4.0
+    holdout_check: bool = True
+
+
+@dataclass(frozen=True)
+class FleetSpec:
+    """The hierarchy over a fleet of cameras of one type (docs/architecture.md, section 8).
+
+    Per channel, a camera's log gain, offset and nonlinearity are its type's
+    mean plus a camera effect shared by its channels plus a channel-within-
+    camera deviation, each Normal with a fitted spread (``pooling``: ``partial``;
+    ``none`` fits every camera on its own; ``complete`` makes the cameras one).
+    With campaigns at two or more dates, log gain and offset drift: a trend per
+    camera, its rate drawn from the fleet's (mean and spread fitted), plus a
+    random walk (``walk``) whose diffusion is fitted, plus each campaign's own state of
+    the camera (``jitter``: a remount, a thermal state; Normal, its spread fitted, prior
+    HalfNormal(``jitter_prior``)).  ``sphere``: the sphere's
+    common scale error, a factor on every gain of one campaign
+    (``per_campaign``: recalibrated between campaigns) or of all
+    (``shared``: one calibration for every campaign), log-normal with the
+    spec's ``[sphere] common_rel``.
+
+    Hyperpriors, in units of the spread of the units' estimates of each
+    quantity (so they adapt to gains and offsets alike): spreads
+    HalfNormal(``spread_prior``), the mean drift rate Normal(0,
+    ``rate_prior``) per year, the rates' spread HalfNormal(``rate_prior``) per
+    year and the walk's diffusion HalfNormal(``walk_prior``) per sqrt(year).
+
+    ``excess``: each unit's stage-one covariance is multiplied, per quantity kind, by a
+    fitted ``kappa = 1 + HalfNormal(excess_prior)``: when the channel model does not
+    describe a camera exactly, a unit's own intervals are too narrow, and the scatter
+    of the units about the hierarchy says by how much (the fleet's intervals widen;
+    ``sqrt(kappa)`` is reported, and over 3 fails the fit).
+
+    ``shared_error``: the fraction of a unit's stage-one error variance that repeats in
+    every campaign of its camera (the same channel model's systematic misfit of the same
+    camera): a camera-level error term carries it, so three campaigns do not shrink a
+    camera's interval by sqrt(3) when their errors are not independent (0: independent).
+    On the independent fleet simulator, 0 gave 95 % intervals of the offsets that covered
+    0.83-0.93.
+
+    ``campaign_sd``: a common effect on every log gain measured in one campaign (Normal,
+    this sd) beside the sphere's: a fleet that does not age along the straight line (it
+    settles), or a bench that differs between campaigns beyond the sphere's scale. Without
+    it the line ties the sphere's per-campaign errors together and biased them (95 %
+    intervals of the absolute gain covered 0.83-0.86 on the independent simulator). It is
+    not extrapolated: the drift ahead is the cameras' trends, walk and jitter.
+    """
+
+    pooling: Literal["partial", "none", "complete"] = "partial"
+    drift: bool = True
+    walk: bool = True
+    sphere: Literal["per_campaign", "shared"] = "per_campaign"
+    spread_prior: float = 1.0
+    rate_prior: float = 0.5
+    walk_prior: float = 0.3
+    excess: bool = True
+    excess_prior: float = 2.0
+    jitter: bool = True
+    jitter_prior: float = 0.3
+    shared_error: float = 0.5
+    campaign_sd: float = 0.02
+    chains: int = 4
+    draws: int = 600
+    warmup: int = 300
+    target_accept: float = 0.9
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A full calibration model: sensor facts plus the components to assemble.
+
+    Attributes
+    ----------
+    name, description : str
+        Identification for reports.
+    bits : int
+        ADC bit depth; full scale is ``2**bits - 1`` DN.
+    stimulus : {"radiance", "irradiance"}
+        What the table's stimulus column holds.
+    reference : Reference
+        Setting for the papers' coefficient table.
+    """
+
+    name: str
+    bits: int
+    reference: Reference
+    description: str = ""
+    stimulus: Literal["radiance", "irradiance"] = "radiance"
+    response: ResponseSpec = field(default_factory=ResponseSpec)
+    dark: DarkSpec = field(default_factory=DarkSpec)
+    noise: NoiseSpec = field(default_factory=NoiseSpec)
+    sphere: SphereSpec = field(default_factory=SphereSpec)
+    saturation: SaturationSpec = field(default_factory=SaturationSpec)
+    settings: SettingsSpec = field(default_factory=SettingsSpec)
+    inference: InferenceSpec = field(default_factory=InferenceSpec)
+    fleet: FleetSpec = field(default_factory=FleetSpec)
+
+    def __post_init__(self) -> None:
+        _check_spec(self)
+
+    @property
+    def full_scale(self) -> float:
+        """Largest DN the ADC can output."""
+        return float(2**self.bits - 1)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], *, source: str = "<dict>") -> ModelSpec:
+        """Build a spec from nested dicts (the TOML layout); unknown keys are errors."""
+        return build(cls, data, source)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Nested dict in the TOML layout."""
+        return dataclasses.asdict(self)
+
+    def to_toml(self) -> str:
+        """Serialise as TOML (round-trips through :func:`load_spec`)."""
+        return dumps(self.to_dict())
+
+    def replace(self, **sections: Any) -> ModelSpec:
+        """Copy with sections replaced; a dict value updates that section's fields.
+
+        ``spec.replace(response={"order": 2}, sphere={"per_level_rel": 0})``
+        """
+        changes = {}
+        for key, value in sections.items():
+            current = getattr(self, key)
+            if isinstance(value, dict) and dataclasses.is_dataclass(current):
+                value = dataclasses.replace(current, **value)
+            changes[key] = value
+        return dataclasses.replace(self, **changes)
+
+    def structure_key(self) -> str:
+        """Hash of everything that changes the model's structure (not sampler settings)."""
+        d = self.to_dict()
+        for key in ("name", "description", "inference", "fleet"):
+            d.pop(key)
+        return hashlib.sha1(dumps(d).encode()).hexdigest()[:16]
+
+
+def load_spec(path: str | os.PathLike) -> ModelSpec:
+    """Load a :class:`ModelSpec` from a TOML file (see ``models/*.toml``)."""
+    data = read_toml(path, "model spec (TOML)")
+    data.pop("kind", None)
+    return ModelSpec.from_dict(data, source=str(path))
+
+
+def _check_spec(spec: ModelSpec) -> None:
+    checks = [
+        (1 <= spec.bits <= 24, f"bits = {spec.bits}; expected 1..24"),
+        (1 <= spec.response.order <= 4, f"response.order = {spec.response.order}; expected 1..4 (the papers' range)"),
+        (spec.reference.exposure_s > 0, "reference.exposure_s must be > 0"),
+        (spec.reference.gain > 0, "reference.gain must be > 0"),
+        (spec.reference.tdi_stages >= 1, "reference.tdi_stages must be >= 1"),
+        (0 <= spec.sphere.common_rel < 0.5, "sphere.common_rel must be in [0, 0.5)"),
+        (0 <= spec.sphere.per_level_rel < 0.5, "sphere.per_level_rel must be in [0, 0.5)"),
+        (spec.noise.read_noise_dn > 0, "noise.read_noise_dn must be > 0"),
+        (spec.noise.conversion_gain > 0, "noise.conversion_gain must be > 0"),
+        (spec.noise.excess_dn >= 0, "noise.excess_dn must be >= 0"),
+        (spec.saturation.margin_dn >= 0, "saturation.margin_dn must be >= 0"),
+        (not spec.dark.temperature or spec.dark.exposure_slope, "dark.temperature needs dark.exposure_slope = true"),
+        (spec.dark.doubling_c > 0 and spec.dark.doubling_rel_sd > 0, "dark.doubling_c and doubling_rel_sd must be > 0"),
+        (spec.saturation.prnu >= 0, "saturation.prnu must be >= 0"),
+        (spec.saturation.prnu_log_sd > 0, "saturation.prnu_log_sd must be > 0"),
+        (spec.saturation.prnu_bound >= 0, "saturation.prnu_bound must be >= 0"),
+        (spec.dark.drift_prior_dn > 0, "dark.drift_prior_dn must be > 0"),
+        (
+            all(
+                0 <= getattr(spec.settings, k) < 0.5 for k in ("gain_tolerance", "exposure_tolerance", "tdi_tolerance")
+            ),
+            "settings tolerances must be in [0, 0.5) (relative standard deviations; 0: exact)",
+        ),
+        (spec.response.gain_prior_median > 0, "response.gain_prior_median must be > 0"),
+        (spec.response.gain_prior_log_sd > 0, "response.gain_prior_log_sd must be > 0"),
+        (spec.response.nonlinearity_prior_sd > 0, "response.nonlinearity_prior_sd must be > 0"),
+        (spec.dark.offset_prior_sd > 0, "dark.offset_prior_sd must be > 0"),
+        (spec.dark.slope_prior_sd > 0, "dark.slope_prior_sd must be > 0"),
+        (spec.inference.chains >= 1 and spec.inference.draws >= 10, "inference needs chains >= 1 and draws >= 10"),
+        (spec.inference.warmup >= 10, f"inference.warmup = {spec.inference.warmup}; expected >= 10"),
+        (1 <= spec.inference.max_tree_depth <= 15, "inference.max_tree_depth must be in 1..15"),
+        (spec.inference.laplace_draws >= 10, "inference.laplace_draws must be >= 10"),
+        (spec.inference.emcee_walkers >= 0, "inference.emcee_walkers must be >= 0 (0: automatic)"),
+        (spec.inference.emcee_steps >= 10 and spec.inference.emcee_burn >= 0, "inference.emcee_steps >= 10, burn >= 0"),
+        (spec.inference.max_rhat > 1.0, "inference.max_rhat must be > 1"),
+        (spec.inference.min_ess > 0, "inference.min_ess must be > 0"),
+        (0 < spec.inference.target_accept < 1, "inference.target_accept must be in (0, 1)"),
+        (0 <= spec.inference.retry_target_accept < 1, "inference.retry_target_accept must be in [0, 1)"),
+        (
+            min(
+                spec.fleet.spread_prior,
+                spec.fleet.rate_prior,
+                spec.fleet.walk_prior,
+                spec.fleet.excess_prior,
+                spec.fleet.jitter_prior,
+            )
+            > 0,
+            "fleet.spread_prior, rate_prior, walk_prior, excess_prior and jitter_prior must be > 0",
+        ),
+        (spec.fleet.chains >= 1 and spec.fleet.draws >= 10, "fleet needs chains >= 1 and draws >= 10"),
+        (spec.fleet.warmup >= 10, f"fleet.warmup = {spec.fleet.warmup}; expected >= 10"),
+        (0 < spec.fleet.target_accept < 1, "fleet.target_accept must be in (0, 1)"),
+        (0 <= spec.fleet.shared_error < 1, "fleet.shared_error must be in [0, 1)"),
+        (spec.fleet.campaign_sd >= 0, "fleet.campaign_sd must be >= 0"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise SpecError(message)

@@ -1,0 +1,486 @@
+"""A fitted camera as posterior draws in physical units: the input of predictions.
+
+The measurement equation (docs/architecture.md, section 2; seeds 000 eq. 3-5, 002 eq.
+11-12) evaluated per posterior draw ``s``::
+
+    DN = dark_s(channel, g, t) + sum_k A_sk x^k,   x = L t M g / (t_ref M_ref g_ref)
+
+with ``A_sk`` the monomial coefficients of the response at the reference
+setting (seed 000 Table 1 form), and the variance of one reading::
+
+    var = ((r g_rel)^2 + K g_rel S + 1/12) / n_avg + excess_s^2 + (prnu S)^2
+
+(read noise ``r`` and conversion gain ``K`` at the reference gain, signal
+``S`` in DN, quantisation 1/12 DN^2, ``n_avg`` pixels x frames averaged, the
+fitted excess scatter of a region mean, and for single pixels the PRNU).
+
+A :class:`Calibration` comes from a :class:`~bayescal.fitting.fit.Fit`, from a saved
+``posterior.nc`` (:meth:`Calibration.load`) or from fixed published
+coefficients (:meth:`Calibration.from_coefficients`, one "draw"), so the
+papers' own numbers run through the same code as the posteriors.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bayescal.errors import PosteriorError, SpecError, TableError
+from bayescal.model.spec import ModelSpec, Reference
+
+__all__ = ["Calibration", "Setting", "CalibratedRange", "SettingFactorDraws"]
+
+#: setting kind -> Setting attribute
+_SETTING_ATTR = {"gain": "gain", "exposure": "exposure_s", "tdi": "tdi_stages"}
+
+
+@dataclass(frozen=True)
+class SettingFactorDraws:
+    """Posterior of one kind's setting factors (:mod:`bayescal.model.components.settings`).
+
+    ``values`` are the nominal values measured with illumination, ``draws``
+    ``(S, len(values))`` their effective factors (1 at the reference) and
+    ``spread`` ``(S,)`` the kind's spread of log factors.
+    """
+
+    kind: str
+    values: tuple[float, ...]
+    draws: np.ndarray
+    spread: np.ndarray
+
+    def factor(self, value: float, reference_value: float) -> np.ndarray:
+        """Factor per draw at a nominal ``value``: its posterior where measured, 1 at the reference,
+        otherwise a draw from the population ``log f ~ Normal(0, spread)`` (the same draws on every
+        call for the same value: seeded by the kind and value)."""
+        n = self.draws.shape[0]
+        match = np.flatnonzero(np.isclose(self.values, value, rtol=1e-9, atol=0))
+        if match.size:
+            return self.draws[:, int(match[0])]
+        if np.isclose(value, reference_value, rtol=1e-9, atol=0):
+            return np.ones(n)
+        import zlib
+
+        rng = np.random.default_rng(zlib.crc32(f"{self.kind}:{value:.12g}".encode()))
+        return np.exp(self.spread * rng.standard_normal(n))
+
+
+@dataclass(frozen=True)
+class Setting:
+    """Camera setting: exposure (s), programmable gain factor, TDI stages, sensor temperature (degC).
+
+    ``temperature_c = None`` means the calibration's reference temperature
+    (it matters only for a calibration with a temperature-dependent dark current).
+    """
+
+    exposure_s: float
+    gain: float = 1.0
+    tdi_stages: float = 1.0
+    temperature_c: float | None = None
+
+    def __post_init__(self):
+        for name in ("exposure_s", "gain", "tdi_stages"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value <= 0:
+                raise SpecError(f"setting {name} must be a positive number, got {value!r}")
+        if self.temperature_c is not None and not np.isfinite(self.temperature_c):
+            raise SpecError(f"setting temperature_c must be a number, got {self.temperature_c!r}")
+
+    def ratio(self, ref: Reference) -> float:
+        """Factor from stimulus to effective stimulus: ``t M g / (t_ref M_ref g_ref)``."""
+        return (self.exposure_s * self.tdi_stages * self.gain) / (ref.exposure_s * ref.tdi_stages * ref.gain)
+
+
+@dataclass(frozen=True)
+class CalibratedRange:
+    """What the calibration measured; settings outside it are extrapolations."""
+
+    exposure_s: tuple[float, float] = (0.0, np.inf)
+    gains: tuple[float, ...] = ()
+    tdi_stages: tuple[float, float] = (0.0, np.inf)
+    max_effective: float = np.inf  # largest unsaturated effective stimulus x
+    temperature_c: tuple[float, float] | None = None  # calibrated sensor temperatures, when recorded
+
+    def flags(self, setting: Setting) -> list[str]:
+        """Reasons this setting is outside the calibrated range (empty: inside)."""
+        out = []
+        lo, hi = self.exposure_s
+        if not lo * (1 - 1e-9) <= setting.exposure_s <= hi * (1 + 1e-9):
+            out.append(f"exposure {setting.exposure_s:g} s outside calibrated {lo:g}-{hi:g} s")
+        if self.gains and not np.any(np.isclose(setting.gain, self.gains)):
+            out.append(f"gain {setting.gain:g} not among calibrated gains {list(self.gains)}")
+        lo, hi = self.tdi_stages
+        if not lo <= setting.tdi_stages <= hi:
+            out.append(f"TDI stages {setting.tdi_stages:g} outside calibrated {lo:g}-{hi:g}")
+        if self.temperature_c is not None and setting.temperature_c is not None:
+            lo, hi = self.temperature_c
+            if not lo <= setting.temperature_c <= hi:
+                out.append(f"temperature {setting.temperature_c:g} degC outside calibrated {lo:g}-{hi:g} degC")
+        return out
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Posterior draws of a camera's calibration in physical units.
+
+    Attributes
+    ----------
+    channels : tuple of str
+    coef : array (S, C, P)
+        Absolute response coefficients ``A1..AP`` (DN per stimulus unit^k at
+        the reference setting), the sphere's common scale folded in.
+    coef_rel : array (S, C, P)
+        The same relative to the sphere's scale (what its readings say).
+    dark_offset : array (S, C, G)
+        Dark level at zero exposure (DN) per gain column.
+    dark_slope : array (S, G)
+        Dark signal per second of exposure (DN/s) per gain column.
+    dark_gains : tuple of float
+        Gain of each dark column; for a proportional dark model the single
+        column is the reference gain and scales with ``g / g_ref``.
+    excess_dn : array (S,)
+        Extra scatter of a region mean (DN); zeros when not modelled.
+    """
+
+    channels: tuple[str, ...]
+    coef: np.ndarray
+    coef_rel: np.ndarray
+    dark_offset: np.ndarray
+    dark_slope: np.ndarray
+    dark_gains: tuple[float, ...]
+    dark_proportional: bool
+    excess_dn: np.ndarray
+    reference: Reference
+    bits: int
+    stimulus: str = "radiance"
+    unit: str = ""
+    read_noise_dn: float = 0.0
+    conversion_gain: float = 0.0
+    prnu: float = 0.0
+    margin_dn: float = 0.5
+    calibrated: CalibratedRange = field(default_factory=CalibratedRange)
+    source: str = ""
+    temperature_ref_c: float = 20.0
+    doubling_c: np.ndarray | None = None  # (S,) dark-current doubling temperature; None: no T dependence
+    setting_factors: tuple[SettingFactorDraws, ...] = ()  # effective factors of settings (empty: exact)
+
+    # ------------------------------------------------------------------ build
+    @classmethod
+    def from_fit(cls, fit) -> Calibration:
+        """From a Bayesian :class:`~bayescal.fitting.fit.Fit` (any backend but ``lsq``)."""
+        if fit.posterior is None:
+            raise SpecError("a least-squares fit has no posterior; fit with nuts, laplace or emcee")
+        post = fit.posterior["posterior"]
+        table = fit.model.table
+        return cls._from_draws(
+            fit.model.spec,
+            {k: np.asarray(post[k]) for k in post.data_vars},
+            tuple(fit.model.layout.channels),
+            tuple(fit.model.layout.gain_values),
+            table.frame,
+            source=f"fit backend={fit.backend} seed={fit.seed}",
+        )
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Calibration:
+        """From a fit directory or its ``posterior.nc`` (spec and measurements are stored in it)."""
+        import arviz as az
+
+        path = Path(path)
+        if path.is_dir():
+            path = path / "posterior.nc"
+        if not path.is_file():
+            raise PosteriorError(f"no posterior at {path}; run `bayescal fit ... --out DIR` first")
+        try:
+            dt = az.from_netcdf(path)
+        except Exception as exc:  # h5py/xarray raise many types for truncated or foreign files
+            raise PosteriorError(
+                f"{path} is not a readable posterior file ({type(exc).__name__}: {str(exc)[:200]}); "
+                "was it truncated? Re-run `bayescal fit`"
+            ) from None
+        attrs = dt.attrs
+        if "spec_toml" not in attrs or "posterior" not in dt.children or "measurements" not in dt.children:
+            raise PosteriorError(f"{path} was not written by `bayescal fit` (no spec, posterior or measurements)")
+        import tomllib
+
+        spec = ModelSpec.from_dict(tomllib.loads(attrs["spec_toml"]), source=str(path))
+        post = dt["posterior"]
+        frame = dt["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
+        frame = frame.rename(columns={spec.stimulus: "stimulus"})
+        channels = tuple(str(c) for c in post["channel"].values)
+        gains = tuple(float(g) for g in post["gain_setting"].values) if "gain_setting" in post.coords else ()
+        draws = {k: np.asarray(post[k]) for k in post.data_vars}
+        return cls._from_draws(spec, draws, channels, gains, frame, source=str(path))
+
+    @classmethod
+    def _from_draws(cls, spec: ModelSpec, draws, channels, gains, frame, source: str) -> Calibration:
+        def flat(a):
+            a = np.asarray(a, dtype=float)
+            return a.reshape((-1,) + a.shape[2:])
+
+        coef = flat(draws["A_abs"])[..., 1:]
+        coef_rel = flat(draws["A_rel"])[..., 1:]
+        n = coef.shape[0]
+        proportional = spec.dark.gain_dependence == "proportional"
+        if proportional:
+            offset = flat(draws["dark_offset_ref"])[..., None]
+            slope = flat(draws["dark_slope_ref"])[..., None] if "dark_slope_ref" in draws else np.zeros((n, 1))
+            dark_gains = (spec.reference.gain,)
+        else:
+            offset = flat(draws["dark_offset"])
+            slope = flat(draws["dark_slope"]) if "dark_slope" in draws else np.zeros((n, offset.shape[-1]))
+            dark_gains = tuple(gains)
+        excess = flat(draws["excess_dn"]) if "excess_dn" in draws else np.zeros(n)
+        read, kconv = spec.noise.read_noise_dn, spec.noise.conversion_gain
+        if spec.noise.kind == "measured" and "dn_var" in frame:
+            read, kconv = _photon_transfer(frame, spec, offset, dark_gains, proportional)
+        return cls(
+            channels=channels,
+            coef=coef,
+            coef_rel=coef_rel,
+            dark_offset=offset,
+            dark_slope=slope,
+            dark_gains=dark_gains,
+            dark_proportional=proportional,
+            excess_dn=excess,
+            reference=spec.reference,
+            bits=spec.bits,
+            stimulus=spec.stimulus,
+            unit=_unit(spec.stimulus),
+            read_noise_dn=read,
+            conversion_gain=kconv,
+            prnu=float(np.median(draws["prnu"])) if "prnu" in draws else spec.saturation.prnu,
+            margin_dn=spec.saturation.margin_dn,
+            calibrated=_calibrated_range(frame, spec),
+            source=source,
+            temperature_ref_c=spec.dark.temperature_ref_c,
+            doubling_c=flat(draws["doubling_c"]) if "doubling_c" in draws else None,
+            setting_factors=_setting_factors(draws, frame, flat),
+        )
+
+    @classmethod
+    def from_coefficients(
+        cls,
+        coefficients: dict[str, list[float]],
+        *,
+        reference: Reference,
+        bits: int,
+        dark_proportional: bool = False,
+        stimulus: str = "radiance",
+        read_noise_dn: float = 0.0,
+        conversion_gain: float = 0.0,
+        dark_slope: float = 0.0,
+    ) -> Calibration:
+        """A fixed-parameter calibration from published coefficients (one draw, no uncertainty).
+
+        Parameters
+        ----------
+        coefficients : dict
+            Channel -> ``[A0, A1, ..., AP]`` at the reference setting
+            (seed 000 Table 1: ``{"G": [51.2, 30.18]}``).  ``A0`` is the
+            dark offset at the reference gain.
+        dark_proportional : bool
+            Offset scales with the gain factor (seed 002 eq. 12); otherwise
+            it is kept at every setting (seed 000 section 5.3).
+        """
+        channels = tuple(coefficients)
+        arr = [np.asarray(coefficients[c], dtype=float) for c in channels]
+        order = max(a.size for a in arr) - 1
+        if order < 1:
+            raise SpecError("coefficients need at least [A0, A1] per channel")
+        full = np.zeros((1, len(channels), order + 1))
+        for i, a in enumerate(arr):
+            full[0, i, : a.size] = a
+        return cls(
+            channels=channels,
+            coef=full[..., 1:],
+            coef_rel=full[..., 1:],
+            dark_offset=full[..., :1],
+            dark_slope=np.full((1, 1), dark_slope),
+            dark_gains=(reference.gain,),
+            dark_proportional=dark_proportional,
+            excess_dn=np.zeros(1),
+            reference=reference,
+            bits=bits,
+            stimulus=stimulus,
+            unit=_unit(stimulus),
+            read_noise_dn=read_noise_dn,
+            conversion_gain=conversion_gain,
+            prnu=0.0,
+            source="published coefficients",
+        )
+
+    # ------------------------------------------------------------ evaluation
+    @property
+    def n_draws(self) -> int:
+        """Number of posterior draws."""
+        return int(self.coef.shape[0])
+
+    @property
+    def full_scale(self) -> float:
+        """Largest ADC code, ``2**bits - 1``."""
+        return float(2**self.bits - 1)
+
+    @property
+    def saturation_dn(self) -> float:
+        """Readings at or above this are treated as clipped."""
+        return self.full_scale - self.margin_dn
+
+    def channel_index(self, channel: str) -> int:
+        """Index of ``channel``; a clear error for an unknown one."""
+        try:
+            return self.channels.index(str(channel))
+        except ValueError:
+            raise TableError(
+                f"channel '{channel}' was not calibrated; calibrated channels: {list(self.channels)}", column="channel"
+            ) from None
+
+    def dark_dn(self, channel: str, setting: Setting) -> np.ndarray:
+        """Dark level (DN) per draw at ``setting``: offset plus dark current times exposure.
+
+        With a temperature model the dark current scales by ``2^((T - T_ref) / T_d)``.
+        """
+        c = self.channel_index(channel)
+        t_eff = setting.exposure_s
+        if self.doubling_c is not None and setting.temperature_c is not None:
+            t_eff = setting.exposure_s * np.exp2((setting.temperature_c - self.temperature_ref_c) / self.doubling_c)
+        if self.dark_proportional:
+            g_rel = setting.gain / self.dark_gains[0]
+            return (self.dark_offset[:, c, 0] + self.dark_slope[:, 0] * t_eff) * g_rel
+        matches = np.flatnonzero(np.isclose(self.dark_gains, setting.gain))
+        if matches.size == 0:
+            raise SpecError(
+                f"gain {setting.gain:g} has no dark calibration: offsets are per gain setting "
+                f"(dark.gain_dependence = 'per_setting'); calibrated gains: {list(self.dark_gains)}"
+            )
+        gi = int(matches[0])
+        return self.dark_offset[:, c, gi] + self.dark_slope[:, gi] * t_eff
+
+    def signal_dn(self, channel: str, x: np.ndarray, relative: bool = False) -> np.ndarray:
+        """Signal (DN) per draw for effective stimulus ``x`` with the draws on its first axis
+        (shape ``(S, ...)``, or ``(1, ...)`` for the same ``x`` in every draw)."""
+        c = self.channel_index(channel)
+        coef = (self.coef_rel if relative else self.coef)[:, c, :]  # (S, P)
+        x = np.asarray(x, dtype=float)
+        out = np.zeros(np.broadcast_shapes((coef.shape[0],) + (1,) * (x.ndim - 1), x.shape))
+        for k in range(coef.shape[1] - 1, -1, -1):  # Horner without constant term
+            out = (out + coef[:, k].reshape((-1,) + (1,) * (x.ndim - 1))) * x
+        return out
+
+    def noise_var(self, signal: np.ndarray, setting: Setting, n_avg: float = 1.0, prnu: float = 0.0) -> np.ndarray:
+        """Variance (DN^2) of one reading with ``n_avg`` pixels x frames averaged.
+
+        ``signal`` has the draws on its first axis.
+        """
+        g_rel = setting.gain / self.reference.gain
+        s = np.maximum(signal, 0.0)
+        pixel = (self.read_noise_dn * g_rel) ** 2 + self.conversion_gain * g_rel * s + 1.0 / 12.0
+        excess = self.excess_dn.reshape((-1,) + (1,) * (np.ndim(signal) - 1))
+        return pixel / n_avg + excess**2 + (prnu * s) ** 2
+
+    def ratio(self, setting: Setting) -> np.ndarray:
+        """Stimulus -> effective stimulus per draw: the nominal ``t M g / (t_ref M_ref g_ref)`` times the
+        settings' effective factors (posterior where measured, population draws where not)."""
+        ratio = np.full(self.n_draws, setting.ratio(self.reference))
+        for f in self.setting_factors:
+            ref = getattr(self.reference, _SETTING_ATTR[f.kind])
+            ratio = ratio * f.factor(getattr(setting, _SETTING_ATTR[f.kind]), ref)
+        return ratio
+
+    def expected_dn(self, channel: str, stimulus, setting: Setting, relative: bool = False) -> np.ndarray:
+        """Expected DN (before clipping) per draw: ``(S,) + shape(stimulus)``."""
+        stimulus = np.asarray(stimulus, dtype=float)
+        x = stimulus[None, ...] * self.ratio(setting).reshape((-1,) + (1,) * stimulus.ndim)
+        dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * stimulus.ndim)
+        return dark + self.signal_dn(channel, x, relative)
+
+    def sample_dn(
+        self,
+        channel: str,
+        stimulus,
+        setting: Setting,
+        rng: np.random.Generator,
+        n_avg: float = 1.0,
+        prnu: float = 0.0,
+        relative: bool = False,
+    ) -> np.ndarray:
+        """Posterior predictive readings (one per draw), clipped to ``[0, full scale]``."""
+        mean = self.expected_dn(channel, stimulus, setting, relative)
+        dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * (mean.ndim - 1))
+        sd = np.sqrt(self.noise_var(mean - dark, setting, n_avg, prnu))
+        return np.clip(mean + sd * rng.standard_normal(mean.shape), 0.0, self.full_scale)
+
+    def flags(self, setting: Setting, stimulus=None) -> list[str]:
+        """Why a prediction at ``setting`` (and ``stimulus``) is an extrapolation."""
+        out = self.calibrated.flags(setting)
+        if stimulus is not None and np.isfinite(self.calibrated.max_effective):
+            x = float(np.max(stimulus)) * setting.ratio(self.reference)
+            if x > self.calibrated.max_effective * (1 + 1e-9):
+                out.append(
+                    f"signal beyond the calibrated range (effective {self.stimulus} {x:.4g} > "
+                    f"{self.calibrated.max_effective:.4g} at the reference setting)"
+                )
+        return out
+
+
+def _unit(stimulus: str) -> str:
+    return "W m^-2 sr^-1" if stimulus == "radiance" else "W m^-2"
+
+
+def _calibrated_range(frame, spec: ModelSpec) -> CalibratedRange:
+    from bayescal.model.data import effective_stimulus
+
+    f = frame
+    lit = f["stimulus"].to_numpy() > 0 if "stimulus" in f else np.ones(len(f), bool)
+    tdi = f["tdi_stages"].to_numpy() if "tdi_stages" in f else np.ones(len(f))
+    x = effective_stimulus(f["stimulus"].to_numpy(), f["exposure_s"].to_numpy(), f["gain"].to_numpy(), tdi, spec)
+    unsat = f["dn_mean"].to_numpy() < spec.full_scale - spec.saturation.margin_dn
+    max_x = float(np.max(x[lit & unsat])) if np.any(lit & unsat) else np.inf
+    temps = None
+    if "temperature_c" in f and np.isfinite(f["temperature_c"]).any():
+        temps = (float(np.nanmin(f["temperature_c"])), float(np.nanmax(f["temperature_c"])))
+    return CalibratedRange(
+        exposure_s=(float(f["exposure_s"].min()), float(f["exposure_s"].max())),
+        gains=tuple(sorted({float(g) for g in f["gain"]})),
+        tdi_stages=(float(np.min(tdi)), float(np.max(tdi))),
+        max_effective=max_x,
+        temperature_c=temps,
+    )
+
+
+def _setting_factors(draws: dict, frame, flat) -> tuple[SettingFactorDraws, ...]:
+    """The posterior's setting factors, keyed by the nominal values measured with illumination."""
+    lit = frame["stimulus"].to_numpy() > 0
+    out = []
+    for kind, column in _SETTING_ATTR.items():
+        name = f"setting_factor_{kind}"
+        if name not in draws:
+            continue
+        values = tuple(sorted({float(v) for v in frame.loc[lit, column]})) if column in frame else (1.0,)
+        out.append(SettingFactorDraws(kind, values, flat(draws[name]), flat(draws[f"setting_spread_{kind}"])))
+    return tuple(out)
+
+
+def _photon_transfer(frame, spec, offset, dark_gains, proportional) -> tuple[float, float]:
+    """Read noise and conversion gain at the reference gain from ``dn_var`` (least squares).
+
+    ``dn_var - 1/12 = r^2 g_rel^2 + K g_rel S`` over unsaturated rows (EMVA
+    1288 photon transfer), ``S`` the mean DN above the posterior-median dark.
+    """
+    from bayescal.inference.lsq import lstsq
+
+    f = frame
+    g_rel = f["gain"].to_numpy() / spec.reference.gain
+    unsat = f["dn_mean"].to_numpy() < spec.full_scale - spec.saturation.margin_dn
+    dark = f["stimulus"].to_numpy() == 0
+    base = np.zeros(len(f))
+    for i, row in enumerate(f.itertuples()):
+        gi = 0 if proportional else int(np.argmin(np.abs(np.asarray(dark_gains) - row.gain)))
+        level = np.median(offset[:, :, gi])
+        base[i] = level * (g_rel[i] if proportional else 1.0)
+    signal = np.where(dark, 0.0, np.maximum(f["dn_mean"].to_numpy() - base, 0.0))
+    design = np.column_stack([g_rel**2, g_rel * signal])[unsat]
+    coef = lstsq(design, (f["dn_var"].to_numpy() - 1.0 / 12.0)[unsat]).coef
+    return float(np.sqrt(max(coef[0], 0.0))), float(max(coef[1], 0.0))

@@ -1,0 +1,150 @@
+"""Exposure planning: the setting most likely to put the next frame's DN in a target window.
+
+Seed 000 section 6: a frame read 534 DN at gain 1, 1/250 s; the radiance
+was inverted and the exposure chosen so that the next frame lands in the
+best-exposure window (1080-1920 DN for 12 bits).  Seed 002 section 6 does
+the same with TDI stages and video gain (eq. 12).
+
+Here the scene's stimulus is a posterior (from inverting the current reading
+with :func:`~bayescal.prediction.invert.radiance_draws`, or a given value), and for
+every allowed setting the next reading is drawn per posterior draw::
+
+    DN_s = clip(dark_s + f_s(L_s * ratio(setting)) + noise_s)
+
+The chosen setting maximises ``P(lo <= DN <= hi)``; ties go to the lower
+gain (less noise and dark), then the shorter exposure (less motion blur),
+then fewer TDI stages.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from bayescal.errors import SpecError
+from bayescal.posterior.calibration import Calibration, Setting
+from bayescal.prediction.invert import radiance_draws
+
+__all__ = ["Plan", "plan_exposure", "default_window"]
+
+
+def default_window(bits: int) -> tuple[float, float]:
+    """Target DN window: seed 000's 1080-1920 DN for 12 bits, the same fractions of full scale otherwise."""
+    fs = 2**bits - 1
+    return (1080.0 / 4095.0 * fs, 1920.0 / 4095.0 * fs)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Ranked settings with the probability of landing in the window.
+
+    Attributes
+    ----------
+    table : pandas.DataFrame
+        One row per allowed setting, best first: exposure_s, gain,
+        tdi_stages, p_in_window, predicted DN median and 95 % predictive
+        interval, p_saturated, extrapolated.
+    stimulus : numpy.ndarray
+        Draws of the scene's stimulus used for the prediction.
+    window : tuple of float
+    """
+
+    table: pd.DataFrame
+    stimulus: np.ndarray
+    window: tuple[float, float]
+    channel: str
+
+    @property
+    def best(self) -> Setting:
+        """The chosen setting."""
+        r = self.table.iloc[0]
+        return Setting(float(r.exposure_s), float(r.gain), float(r.tdi_stages))
+
+    @property
+    def probability(self) -> float:
+        """Probability that the next reading at :attr:`best` lands in the window."""
+        return float(self.table.iloc[0].p_in_window)
+
+
+def plan_exposure(
+    cal: Calibration,
+    channel: str,
+    *,
+    dn: float | None = None,
+    current: Setting | None = None,
+    stimulus: float | None = None,
+    exposures: list[float],
+    gains: list[float] = (1.0,),
+    tdi_stages: list[float] = (1.0,),
+    window: tuple[float, float] | None = None,
+    n_avg: float = 1.0,
+    allow_extrapolation: bool = True,
+    seed: int = 0,
+) -> Plan:
+    """Rank the allowed settings by the probability that the next reading lands in ``window``.
+
+    Give the scene either as a reading ``dn`` at ``current`` settings (its
+    stimulus posterior is inverted with the reading's noise) or as a known
+    ``stimulus``.  ``n_avg`` is the number of pixels x frames averaged in
+    the readings (both the current one and the next).
+    """
+    if (dn is None) == (stimulus is None):
+        raise SpecError("give the scene as dn= (with current=) or as stimulus=, not both")
+    window = tuple(window) if window is not None else default_window(cal.bits)
+    if not (len(window) == 2 and 0 <= window[0] < window[1] <= cal.full_scale):
+        raise SpecError(f"window must be (low, high) DN with 0 <= low < high <= {cal.full_scale:g}, got {window}")
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x9A1]))
+    if dn is not None:
+        if current is None:
+            raise SpecError("dn= needs the current= setting it was read at")
+        if dn >= cal.saturation_dn:
+            raise SpecError(
+                f"the current reading {dn:g} DN is clipped; its stimulus has only a lower bound. "
+                "Plan from a shorter exposure or lower gain"
+            )
+        z = rng.standard_normal(cal.n_draws)
+        stim = np.maximum(radiance_draws(cal, channel, np.array([dn]), current, n_avg=n_avg, z=z)[0], 0.0)
+    else:
+        stim = np.full(cal.n_draws, float(stimulus))
+    rows = []
+    for t, g, m in itertools.product(exposures, gains, tdi_stages):
+        setting = Setting(float(t), float(g), float(m))
+        try:
+            dark = cal.dark_dn(channel, setting)
+        except SpecError:
+            continue  # a gain without dark calibration cannot be planned for
+        x = stim * cal.ratio(setting)
+        signal = np.einsum("sk,sk->s", cal.coef[:, cal.channel_index(channel), :], _powers(x, cal.coef.shape[2]))
+        sd = np.sqrt(cal.noise_var(signal, setting, n_avg))
+        reading = np.clip(dark + signal + sd * rng.standard_normal(signal.shape), 0.0, cal.full_scale)
+        why = cal.flags(setting, float(np.median(stim)))
+        if why and not allow_extrapolation:
+            continue
+        lo, med, hi = np.quantile(reading, [0.025, 0.5, 0.975])
+        rows.append(
+            {
+                "exposure_s": setting.exposure_s,
+                "gain": setting.gain,
+                "tdi_stages": setting.tdi_stages,
+                "p_in_window": float(np.mean((reading >= window[0]) & (reading <= window[1]))),
+                "dn_median": med,
+                "dn_lo": lo,
+                "dn_hi": hi,
+                "p_saturated": float(np.mean(reading >= cal.saturation_dn)),
+                "extrapolated": bool(why),
+                "why": "; ".join(why),
+            }
+        )
+    if not rows:
+        raise SpecError("no allowed setting has a dark calibration; check gains against the calibrated ones")
+    table = pd.DataFrame(rows).sort_values(
+        ["p_in_window", "gain", "exposure_s", "tdi_stages"], ascending=[False, True, True, True], kind="stable"
+    )
+    return Plan(table.reset_index(drop=True), stim, window, channel)
+
+
+def _powers(x: np.ndarray, order: int) -> np.ndarray:
+    return np.stack([x ** (k + 1) for k in range(order)], axis=-1)

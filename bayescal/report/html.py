@@ -1,0 +1,467 @@
+"""Calibration report: one self-contained HTML file (figures embedded), plus JSON and Markdown.
+
+Built from a fit directory (``posterior.nc``, ``summary.json``, ``lsq.csv``),
+so a report can be made at any time from what a fit wrote.  Every number in
+the tables is taken from ``summary.json`` (tested), the figures from the
+posterior draws.  Contents (issue 6):
+
+* verdict of the diagnostics, with a visible warning when the fit failed;
+* coefficients in the papers' form ``DN = A0 + A1 L + ...`` at the reference
+  setting with 95 % intervals, beside the least-squares table (coefficients,
+  R^2, SSE, RMSE; seed 000 Table 1);
+* response curves per channel with 95 % credible and predictive bands, the
+  data (censored points marked) and the least-squares lines; residuals;
+* an uncertainty budget of inverted radiance (sphere scale, calibration
+  parameters, measurement noise) at a few DN levels;
+* derived-setting and inversion examples;
+* trace plots of the gains.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bayescal.errors import PosteriorError
+from bayescal.io.files import write_json_atomic, write_text_atomic
+from bayescal.posterior.calibration import Calibration, Setting
+from bayescal.prediction.invert import invert, radiance_draws
+from bayescal.prediction.readings import predict
+from bayescal.report.figures import colours as colour_cycle
+from bayescal.report.figures import png_base64, subplots
+from bayescal.report.text import fmt, markdown_table, table_rows
+
+__all__ = ["write_report", "uncertainty_budget"]
+
+BUDGET_FRACTIONS = (0.05, 0.25, 0.5, 0.75)  # of full scale
+
+
+def uncertainty_budget(cal: Calibration, fractions=BUDGET_FRACTIONS, seed: int = 0) -> pd.DataFrame:
+    """Variance shares of inverted radiance at the reference setting (one pixel).
+
+    Three nested inversions of the same DN: parameters only (coefficients
+    relative to the sphere, no noise), plus the sphere's common scale
+    (absolute coefficients), plus the reading's noise.  Their variance
+    differences are the shares of calibration parameters, sphere and noise.
+    """
+    ref = Setting(cal.reference.exposure_s, cal.reference.gain, cal.reference.tdi_stages)
+    z = np.random.default_rng(np.random.SeedSequence([seed, 0xB0D6])).standard_normal(cal.n_draws)
+    rows = []
+    for ch in cal.channels:
+        dark = float(np.median(cal.dark_dn(ch, ref)))
+        for frac in fractions:
+            dn = np.array([dark + frac * (cal.full_scale - dark)])
+            params = radiance_draws(cal, ch, dn, ref, relative=True)[0]
+            sphere = radiance_draws(cal, ch, dn, ref)[0]
+            full = radiance_draws(cal, ch, dn, ref, prnu=cal.prnu, z=z)[0]
+            v_p, v_s, v_f = np.var(params), np.var(sphere), np.var(full)
+            total = max(v_f, v_s, v_p)
+            rows.append(
+                {
+                    "channel": ch,
+                    "dn": float(dn[0]),
+                    "radiance_median": float(np.median(full)),
+                    "rel_sd_total": float(np.sqrt(total) / np.median(full)),
+                    "share_parameters": float(v_p / total),
+                    "share_sphere": float(max(v_s - v_p, 0.0) / total),
+                    "share_noise": float(max(v_f - v_s, 0.0) / total),
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = None, seed: int = 0) -> Path:
+    """Write ``report.html`` (self-contained), ``report.json`` and ``report.md``; returns the HTML path.
+
+    ``out`` defaults to ``FIT_DIR/report.html``; JSON and Markdown go beside it.
+    """
+    fit_dir = Path(fit_dir)
+    out = Path(out) if out is not None else fit_dir / "report.html"
+    try:
+        summary = json.loads((fit_dir / "summary.json").read_text())
+        summary["diagnostics"]["verdict"], summary["lsq"]  # noqa: B018 - the keys the report reads
+    except (OSError, UnicodeError, ValueError, KeyError, TypeError) as exc:
+        raise PosteriorError(
+            f"{fit_dir / 'summary.json'} is missing or not a bayescal summary ({type(exc).__name__}: {exc}); "
+            "re-run `bayescal fit`"
+        ) from None
+    cal = Calibration.load(fit_dir)
+    import arviz as az
+
+    tree = az.from_netcdf(fit_dir / "posterior.nc")
+    frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
+    frame = frame.rename(columns={cal.stimulus: "stimulus"})
+    lsq = pd.DataFrame(summary["lsq"])
+    coef = _coefficient_table(summary)
+    lsq_ref = _lsq_at_reference(lsq, cal, summary)
+    budget = uncertainty_budget(cal, seed=seed)
+    examples = _examples(cal, seed)
+    figures = {
+        "response": _fig_response(cal, frame, lsq),
+        "residuals": _fig_residuals(cal, frame),
+        "misfit": _fig_misfit(summary["diagnostics"].get("misfit"), summary["diagnostics"].get("holdout")),
+        "budget": _fig_budget(budget),
+        "trace": _fig_trace(tree, cal),
+    }
+    data = {
+        "status": summary["status"],
+        "verdict": summary["diagnostics"]["verdict"],
+        "backend": summary["backend"],
+        "seed": summary["seed"],
+        "model": summary["model"],
+        "stimulus_unit": summary["stimulus_unit"],
+        "diagnostics": summary["diagnostics"],
+        "coefficients": coef.to_dict("records"),
+        "lsq_at_reference": lsq_ref.to_dict("records"),
+        "uncertainty_budget": budget.to_dict("records"),
+        "derived_settings": examples["predict"].to_dict("records"),
+        "inversion": examples["invert"].to_dict("records"),
+    }
+    write_json_atomic(out.with_suffix(".json"), data)
+    write_text_atomic(out.with_suffix(".md"), _markdown(data, coef, lsq_ref, budget, examples))
+    write_text_atomic(out, _html(data, coef, lsq_ref, budget, examples, figures))
+    return out
+
+
+# ----------------------------------------------------------------- tables
+def _coefficient_table(summary: dict) -> pd.DataFrame:
+    params = {p["parameter"]: p for p in summary["parameters"]}
+    rows = []
+    for r in summary["comparison_at_reference"]:
+        name = f"A_abs[{r['channel']}, {r['coefficient'][1:]}]"
+        p = params.get(name, {})
+        rel = params.get(f"A_rel[{r['channel']}, {r['coefficient'][1:]}]", {})
+        rows.append(
+            {
+                "channel": r["channel"],
+                "coefficient": r["coefficient"],
+                "mean": p.get("mean"),
+                "q2.5": p.get("q2.5"),
+                "q97.5": p.get("q97.5"),
+                "rel_mean": rel.get("mean"),
+                "rel_q2.5": rel.get("q2.5"),
+                "rel_q97.5": rel.get("q97.5"),
+                "lsq": r.get("lsq"),
+                "lsq_lo": r.get("lsq_lo"),
+                "lsq_hi": r.get("lsq_hi"),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def _lsq_at_reference(lsq: pd.DataFrame, cal: Calibration, summary: dict) -> pd.DataFrame:
+    if lsq.empty:
+        return lsq
+    ref = cal.reference
+    at = lsq[np.isclose(lsq["exposure_s"], ref.exposure_s) & np.isclose(lsq["gain"], ref.gain)]
+    keep = ["channel", "order", "n"] + [c for c in lsq.columns if c.startswith("A") and not c.endswith("_se")]
+    return at[keep + ["r2", "sse", "rmse"]].reset_index(drop=True)
+
+
+def _examples(cal: Calibration, seed: int) -> dict[str, pd.DataFrame]:
+    ref = Setting(cal.reference.exposure_s, cal.reference.gain, cal.reference.tdi_stages)
+    longer = Setting(cal.reference.exposure_s * 2.5, cal.reference.gain, cal.reference.tdi_stages)
+    preds = []
+    for ch in cal.channels:  # a scene that reads about 40 % of full scale at the longer exposure, per channel
+        dark = float(np.median(cal.dark_dn(ch, ref)))
+        target = dark + 0.4 * (cal.full_scale - dark) / 2.5
+        stim = float(np.nanmedian(invert(cal, np.array([target]), ch, ref, seed=seed).to_frame()["median"]))
+        preds.append(predict(cal, [stim if np.isfinite(stim) and stim > 0 else 1.0], longer, [ch], seed=seed))
+    pred = pd.concat(preds, ignore_index=True)
+    rows = []
+    for ch in cal.channels:
+        dark = float(np.median(cal.dark_dn(ch, ref)))
+        dns = np.round([dark + 0.1 * (cal.full_scale - dark), dark + 0.5 * (cal.full_scale - dark), cal.full_scale])
+        rows.append(invert(cal, dns, ch, ref, seed=seed).to_frame())
+    return {"predict": pred, "invert": pd.concat(rows, ignore_index=True)}
+
+
+# ---------------------------------------------------------------- figures
+def _png(fig) -> str:
+    return png_base64(fig)
+
+
+def _settings(frame: pd.DataFrame) -> list[tuple[float, float, float]]:
+    lit = frame[frame["stimulus"] > 0]
+    tdi = lit["tdi_stages"] if "tdi_stages" in lit else pd.Series(1.0, index=lit.index)
+    return sorted(set(zip(lit["exposure_s"], lit["gain"], tdi, strict=True)))
+
+
+def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> str:
+    chans = list(cal.channels)
+    fig, axes = subplots(1, len(chans), figsize=(4.6 * len(chans), 4.0), squeeze=False)
+    rng = np.random.default_rng(0)
+    n_avg = float(np.median(frame.get("n_frames", 1) * frame.get("n_pixels", 1)))
+    colours = colour_cycle()
+    for ax, ch in zip(axes[0], chans, strict=True):
+        for k, (t, g, m) in enumerate(_settings(frame)):
+            col = colours[k % len(colours)]
+            rows = frame[(frame.channel == ch) & np.isclose(frame.exposure_s, t) & np.isclose(frame.gain, g)]
+            rows = rows[rows["stimulus"] > 0]
+            if rows.empty:
+                continue
+            s = Setting(t, g, m)
+            grid = np.linspace(0, rows["stimulus"].max() * 1.05, 60)
+            mean = np.clip(cal.expected_dn(ch, grid, s, relative=True), 0, cal.full_scale)
+            pred = cal.sample_dn(ch, grid, s, rng, n_avg=n_avg, relative=True)
+            lo, hi = np.quantile(mean, [0.025, 0.975], axis=0)
+            plo, phi = np.quantile(pred, [0.025, 0.975], axis=0)
+            ax.fill_between(grid, plo, phi, color=col, alpha=0.12, lw=0)
+            ax.fill_between(grid, lo, hi, color=col, alpha=0.35, lw=0)
+            ax.plot(grid, np.median(mean, axis=0), color=col, lw=1.2, label=f"{t:g} s, gain {g:g}")
+            cens = rows["dn_mean"] >= cal.saturation_dn
+            ax.plot(rows["stimulus"][~cens], rows["dn_mean"][~cens], "o", color=col, ms=3.5)
+            ax.plot(rows["stimulus"][cens], rows["dn_mean"][cens], "x", color="k", ms=6, mew=1.5)
+            fitrow = lsq[(lsq.channel == ch) & np.isclose(lsq.exposure_s, t) & np.isclose(lsq.gain, g)]
+            if len(fitrow):
+                r = fitrow[fitrow.order == fitrow.order.max()].iloc[0]
+                a = [r[f"A{i}"] for i in range(int(r.order) + 1)]
+                ax.plot(grid, np.polyval(a[::-1], grid), "--", color=col, lw=0.9)
+        ax.axhline(cal.full_scale, color="0.5", lw=0.6)
+        ax.set_ylim(0, cal.full_scale * 1.06)
+        ax.set(title=f"channel {ch}", xlabel=f"{cal.stimulus} ({cal.unit})", ylabel="mean DN")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
+    fig.suptitle(
+        "posterior median (line), 95 % credible and predictive bands (too narrow to see at this scale: the "
+        "residual panels below show them in sd units); dashed: least squares; x: censored (clipped)",
+        fontsize=9,
+    )
+    fig.tight_layout(rect=(0, 0.1, 1, 0.95))
+    return _png(fig)
+
+
+def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
+    """Residuals in predictive sds (a band of +-2 is what the model allows), one colour per setting."""
+    chans = list(cal.channels)
+    fig, axes = subplots(1, len(chans), figsize=(4.6 * len(chans), 3.4), squeeze=False, sharey=True)
+    rng = np.random.default_rng(1)
+    colours = colour_cycle()
+    settings = _settings(frame)
+    for ax, ch in zip(axes[0], chans, strict=True):
+        ax.axhspan(-2, 2, color="0.85", lw=0)
+        ax.axhline(0, color="0.5", lw=0.6)
+        for k, (t, g, m) in enumerate(settings):
+            rows = frame[
+                (frame.channel == ch)
+                & np.isclose(frame.exposure_s, t)
+                & np.isclose(frame.gain, g)
+                & (frame["stimulus"] > 0)
+                & (frame.dn_mean < cal.saturation_dn)
+            ]
+            if rows.empty:
+                continue
+            s = Setting(t, g, m)
+            n_avg = (rows.get("n_frames", 1) * rows.get("n_pixels", 1)).to_numpy(dtype=float)
+            stim = rows["stimulus"].to_numpy()
+            pred = cal.sample_dn(ch, stim, s, rng, n_avg=float(np.median(n_avg)), relative=True)
+            z = (rows["dn_mean"].to_numpy() - np.median(pred, axis=0)) / np.std(pred, axis=0)
+            label = f"{t:g} s, gain {g:g}" + (f", TDI {m:g}" if m != 1 else "")
+            ax.plot(stim, z, "o", ms=3.5, color=colours[k % len(colours)], label=label)
+        ax.set(title=f"channel {ch}", xlabel=f"{cal.stimulus} ({cal.unit})")
+    axes[0][0].set_ylabel("(data - model) / predictive sd")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
+    return _png(fig)
+
+
+def _fig_misfit(misfit: dict | None, holdout: dict | None = None) -> str:
+    """The misfit checks (:mod:`bayescal.misfit`): residual sums per group of rows, each setting's rows
+    left out and predicted by the rest (:mod:`bayescal.holdout`), and the excess scatter."""
+    fig, (ax, hx, bx) = subplots(1, 3, figsize=(13, 3.6), gridspec_kw={"width_ratios": [4, 2, 1]})
+    limits = (misfit or {}).get("thresholds", {"excess_ratio": 10.0, "group_z": 4.0})
+    zmax, rmax = limits["group_z"], limits["excess_ratio"]
+    groups = pd.DataFrame((misfit or {}).get("groups", []))
+    if len(groups):
+        short = {"exposure_s": "exposure", "tdi_stages": "TDI"}
+        labels = [f"{short.get(r.column, r.column)} {r.value}" for r in groups.itertuples()]
+        colors = ["C3" if abs(z) > zmax else "C0" for z in groups["z"]]
+        ax.bar(range(len(groups)), groups["z"], color=colors)
+        ax.set_xticks(range(len(groups)), labels, rotation=60, ha="right", fontsize=7)
+        for level in (-zmax, zmax):
+            ax.axhline(level, color="C3", lw=0.8, ls="--")
+        ax.set(ylabel="sum of residuals / sqrt(n)  (sd)", title=f"residuals by group of rows (|z| > {zmax:g}: flagged)")
+    held = pd.DataFrame((holdout or {}).get("groups", []))
+    if len(held):
+        held = held[np.isfinite(pd.to_numeric(held["z"], errors="coerce").to_numpy(dtype=float))]
+        names = [
+            g.replace("the illuminated ", "").replace("the dark rows at ", "dark ").replace(" rows", "")
+            for g in held["group"]
+        ]
+        hx.bar(range(len(held)), held["z"], color=["C3" if abs(z) > zmax else "C0" for z in held["z"]])
+        hx.set_xticks(range(len(held)), names, rotation=60, ha="right", fontsize=7)
+        for level in (-zmax, zmax):
+            hx.axhline(level, color="C3", lw=0.8, ls="--")
+        hx.set(ylabel="(reading - predicted) / sd", title="left out, predicted by the rest")
+    else:
+        hx.set_axis_off()
+    ratio = (misfit or {}).get("excess_ratio")
+    if ratio is not None:
+        bx.bar([0], [ratio], color="C3" if ratio > rmax else "C0")
+        bx.axhline(rmax, color="C3", lw=0.8, ls="--")
+        bx.set_xticks([0], ["excess / floor"])
+        bx.set(title="excess scatter", ylabel="x noise floor")
+    else:
+        bx.set_axis_off()
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _fig_budget(budget: pd.DataFrame) -> str:
+    fig, ax = subplots(figsize=(7.5, 3.2))
+    labels = [f"{r.channel} {r.dn:.0f} DN" for r in budget.itertuples()]
+    left = np.zeros(len(budget))
+    for name, col in (("share_parameters", "C0"), ("share_sphere", "C1"), ("share_noise", "C2")):
+        ax.barh(labels, budget[name], left=left, color=col, label=name.removeprefix("share_"))
+        left += budget[name].to_numpy()
+    ax.set(xlabel="share of inverted-radiance variance", xlim=(0, 1))
+    ax.invert_yaxis()
+    ax.legend(fontsize=8, loc="lower right")
+    return _png(fig)
+
+
+def _fig_trace(tree, cal: Calibration) -> str:
+    gain = np.asarray(tree["posterior"]["gain_rel"])  # (chain, draw, channel)
+    fig, axes = subplots(1, gain.shape[-1], figsize=(4.6 * gain.shape[-1], 2.6), squeeze=False)
+    for c, ax in enumerate(axes[0]):
+        for chain in range(gain.shape[0]):
+            ax.plot(gain[chain, :, c], lw=0.4, alpha=0.8)
+        ax.set(title=f"gain {cal.channels[c]} (sphere-relative), per chain", xlabel="draw")
+    return _png(fig)
+
+
+# ----------------------------------------------------------------- output
+def _html_table(df: pd.DataFrame) -> str:
+    head, rows = table_rows(df)
+    th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _markdown(data, coef, lsq_ref, budget, examples) -> str:
+    d = data["diagnostics"]
+    parts = [
+        f"# Calibration report: {data['model']['name']}",
+        "",
+        f"**Status: {data['status']}** ({data['verdict']}); backend {data['backend']}, seed {data['seed']}; "
+        f"divergences {d.get('divergences')}, max R-hat {fmt(d.get('max_rhat'))}, "
+        f"min bulk ESS {fmt(d.get('min_ess_bulk'))}.",
+        "",
+        f"## Coefficients at the reference setting (DN = A0 + A1 L + ..., L in {data['stimulus_unit']})",
+        "",
+        markdown_table(coef),
+        "",
+        "## Least squares at the reference setting",
+        "",
+        markdown_table(lsq_ref),
+        "",
+        "## Uncertainty budget of inverted radiance (one pixel, reference setting)",
+        "",
+        markdown_table(budget),
+        "",
+        "## Derived setting (2.5 x reference exposure)",
+        "",
+        markdown_table(examples["predict"].drop(columns=["why"])),
+        "",
+        "## Inversion examples",
+        "",
+        markdown_table(examples["invert"]),
+        "",
+    ]
+    return "\n".join(parts)
+
+
+_CSS = """
+body{font-family:system-ui,sans-serif;max-width:1500px;margin:1.5em auto;padding:0 1em;color:#222}
+table{border-collapse:collapse;margin:.5em 0 1.5em;font-size:13px}
+td,th{border:1px solid #ccc;padding:3px 7px;text-align:right}th{background:#f2f2f2}
+.ok{background:#e7f6e7;border:2px solid #3a3;padding:.6em}
+.failed{background:#fde8e8;border:3px solid #c00;padding:.8em;font-size:1.3em;font-weight:bold}
+img{max-width:100%}
+"""
+
+_CHECK_IMAGES = """
+<script>
+window.addEventListener('load', function () {
+  var imgs = document.images, good = 0;
+  for (var i = 0; i < imgs.length; i++) { if (imgs[i].complete && imgs[i].naturalWidth > 0) good++; }
+  document.body.setAttribute('data-images', good + '/' + imgs.length);
+});
+</script>
+"""
+
+
+def _diagnostics_row(backend: str, d: dict) -> dict:
+    """The diagnostics that apply to the backend used (no divergences for a Laplace fit)."""
+    misfit = d.get("misfit") or {}
+    row: dict = {}
+    if backend in ("nuts", "emcee"):
+        keys = ("divergences", "max_rhat", "min_ess_bulk", "min_ess_tail") if backend == "nuts" else ("min_ess_bulk",)
+        row.update({k: d.get(k) for k in keys})
+        if d.get("retried"):
+            row["retried"] = d["retried"]
+    else:
+        row.update(map_converged=d.get("map_converged"), hessian_positive_definite=d.get("hessian_positive_definite"))
+    row["largest |residual| (pred. sd)"] = d.get("max_abs_residual_z")
+    if "excess_ratio" in misfit:
+        row["excess scatter / noise floor"] = misfit["excess_ratio"]
+    return row
+
+
+def _html(data, coef, lsq_ref, budget, examples, figures) -> str:
+    d = data["diagnostics"]
+    failed = data["status"] != "ok"
+    problems = "".join(f"<li>{html.escape(p)}</li>" for p in d.get("problems", []))
+    banner = (
+        f'<div class="failed" id="verdict">FIT FAILED. Do not use these numbers.<ul>{problems}</ul></div>'
+        if failed
+        else '<div class="ok" id="verdict">Diagnostics passed: the chains converged and the model fits its data '
+        "to within their noise.</div>"
+    )
+    img = lambda key, alt: f'<img alt="{alt}" src="data:image/png;base64,{figures[key]}">'  # noqa: E731
+    diag = pd.DataFrame([_diagnostics_row(data["backend"], d)])
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<title>bayescal report: {html.escape(data["model"]["name"])}</title><style>{_CSS}</style></head>
+<body>
+<h1>Calibration report: {html.escape(data["model"]["name"])}</h1>
+<p>Backend <b>{data["backend"]}</b>, seed {data["seed"]}. The model:</p>
+<ul class="components">{"".join(f"<li>{html.escape(c)}</li>" for c in data["model"]["components"])}</ul>
+{banner}
+<h2>Diagnostics</h2>
+{_html_table(diag)}
+<h2>Coefficients at the reference setting</h2>
+<p>DN = A0 + A1 L + ... with L in {html.escape(data["stimulus_unit"])}: posterior mean and 95 % interval
+(absolute: the sphere's common scale uncertainty included; rel: against the sphere's own scale, comparable with
+least squares), beside the least-squares estimate and its 95 % confidence interval.</p>
+{_html_table(coef)}
+<h2>Least squares at the reference setting (seed 000 Table 1 form)</h2>
+{_html_table(lsq_ref)}
+<h2>Response curves</h2>
+{img("response", "response curves")}
+<h2>Residuals</h2>
+{img("residuals", "residuals")}
+<h2>Does the model fit its data?</h2>
+<p>Standardised residuals summed over each group of rows (gain step, exposure, TDI, channel, sphere level),
+and the fitted excess scatter over the noise floor of a row mean. A group beyond 4 sd or an excess over 10
+floors fails the fit: the model would otherwise absorb the misfit into its noise.</p>
+{img("misfit", "misfit checks")}
+<h2>Uncertainty budget of inverted radiance</h2>
+<p>Share of the variance of radiance inverted from one pixel's reading at the reference setting.</p>
+{img("budget", "uncertainty budget")}
+{_html_table(budget)}
+<h2>Derived setting: 2.5 x the reference exposure</h2>
+{_html_table(examples["predict"].drop(columns=["why"]))}
+<h2>Inversion examples (reference setting, one pixel)</h2>
+{_html_table(examples["invert"])}
+<h2>Traces</h2>
+{img("trace", "trace plots")}
+{_CHECK_IMAGES}
+</body></html>
+"""
