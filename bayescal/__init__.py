@@ -46,7 +46,7 @@ _LAZY = {
     "load_steps": "bayescal.io.emva",
     "read_descriptor": "bayescal.io.emva",
     "BACKENDS": "bayescal.fitting.fit",
-    "Fit": "bayescal.fitting.fit",
+    "Fit": "bayescal.fitting.result",
     "fit": "bayescal.fitting.fit",
     "invert_image": "bayescal.prediction.images",
     "read_image": "bayescal.prediction.images",
@@ -136,7 +136,8 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from bayescal.characterization.emva1288 import Characterization, characterize, standard_method
     from bayescal.characterization.nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves
     from bayescal.fitting.batch import FitBatch, fit_many
-    from bayescal.fitting.fit import BACKENDS, Fit, fit
+    from bayescal.fitting.fit import BACKENDS, fit
+    from bayescal.fitting.result import Fit
     from bayescal.fleet.export import fleet_calibration
     from bayescal.fleet.posterior import FleetFit, compare_pooling, fit_fleet
     from bayescal.fleet.units import load_fleet_table

@@ -19,8 +19,8 @@ import jax, jax.numpy as jnp
 import bayescal as bc
 state = lambda: [jax.config.jax_enable_x64, jax.config.jax_compilation_cache_dir, str(jnp.ones(2).dtype)]
 before = state()
-spec = bc.load_spec({str(bc.__file__).rsplit('/', 2)[0]!r} + "/models/seed000_bayer.toml")
-design = bc.load_design({str(bc.__file__).rsplit('/', 2)[0]!r} + "/models/seed000_design.toml")
+spec = bc.load_spec({str(bc.__file__).rsplit("/", 2)[0]!r} + "/models/seed000_bayer.toml")
+design = bc.load_design({str(bc.__file__).rsplit("/", 2)[0]!r} + "/models/seed000_design.toml")
 table = bc.simulate(spec, design, seed=1).table
 with warnings.catch_warnings():
     warnings.simplefilter("ignore")

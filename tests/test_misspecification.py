@@ -181,7 +181,7 @@ def test_clip_window_likelihood_closed_form():
     import jax.numpy as jnp
     from scipy import integrate, stats
 
-    from bayescal.model.components.saturation import ClipWindowNormal
+    from bayescal.model.components.likelihoods import ClipWindowNormal
 
     def logp(y, lo, hi, mu=1.0, s=0.01):
         d = ClipWindowNormal(jnp.asarray(mu), jnp.asarray(s), jnp.asarray(lo), jnp.asarray(hi), 2.0, False)

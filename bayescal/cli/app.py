@@ -202,7 +202,7 @@ def _parser() -> argparse.ArgumentParser:
     sb.add_argument("data", help="CSV or Parquet table: its design (settings, levels) is used, not its readings")
     sb.add_argument("--model", required=True, help="model spec (TOML); its priors generate the datasets")
     sb.add_argument("--sims", type=int, default=200, help="simulated datasets (default 200)")
-    sb.add_argument("--backend", default="nuts", choices=backends.names(batched=True))
+    sb.add_argument("--backend", default="nuts", choices=backends.names(), help="backend of the refits (default nuts)")
     sb.add_argument("--out", required=True, help="output stem: writes STEM.csv, STEM.md, STEM.png")
     sb.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     sb.set_defaults(func=_cmd_sbc)

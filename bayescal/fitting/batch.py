@@ -1,13 +1,13 @@
-"""Fit many datasets of one model structure together: replications, sensors, SBC.
+"""Fit many datasets of one model structure together: replications, sensors, SBC; one dataset is a fit.
 
-:func:`fit_many` shares one compilation across datasets of one shape
-(docs/architecture.md, section 4): the MAP searches run as one ``jax.vmap``-ed program
-over batches of datasets, every (dataset, chain) NUTS chain runs the same
-compiled chain program on one thread pool, and R-hat/ESS are computed by
-arviz for all datasets in one vectorised call.  Each dataset gets exactly
-the draws ``fit(table, spec, backend, seed=seeds[i])`` gives up to the MAP
-search's last digits.  :meth:`FitBatch.fit` turns one dataset into a full
-:class:`~bayescal.fitting.fit.Fit` (physical quantities, report, files) on demand.
+:func:`fit_many` shares one compilation across datasets of one shape (docs/architecture.md,
+section 4): the MAP searches run one after another or as one ``jax.vmap``-ed program, and the
+backend samples every dataset through its ``sample_many`` (NUTS queues every (dataset, chain)
+pair on one thread pool; the other backends run the datasets in turn).  Dataset ``i`` gets
+exactly the draws ``fit(tables[i], spec, backend, seed=seeds[i])`` gives: :func:`~bayescal.fit`
+*is* this function on one table.  :meth:`FitBatch.fit` turns one dataset into a full
+:class:`~bayescal.fitting.result.Fit` (physical quantities, checks, report, files) on demand; the
+batch's own per-dataset verdict (:attr:`FitBatch.diagnostics`) is computed only when asked for.
 """
 
 from __future__ import annotations
@@ -15,33 +15,28 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
-import arviz as az
 import jax
 import numpy as np
 import pandas as pd
-import xarray as xr
 
 from bayescal._config import computes
 from bayescal.errors import SpecError
-from bayescal.fitting.fit import OUTLIER_Z, SAMPLED, Fit, _finish, misfit_of, row_summaries
+from bayescal.fitting.result import OUTLIER_Z, SAMPLED, Fit, finish, misfit_of, row_summaries
 from bayescal.inference import registry as backends
 from bayescal.inference.laplace import LaplaceResult, laplace, laplace_many
 from bayescal.inference.lsq import lsq_baseline
-from bayescal.inference.nuts import NutsDraws, run_nuts_many
 from bayescal.inference.program import Program, program_for
 from bayescal.inference.registry import Draws
-from bayescal.inference.samplers import laplace_problems, laplace_z, note_retry, nuts_stats, refuse_pooled
+from bayescal.inference.samplers import refuse_pooled
 from bayescal.inference.start import initial_point
 from bayescal.io.table import MeasurementTable
 from bayescal.model.assemble import CalibrationModel, build_model
 from bayescal.model.physical import physical_draws
 from bayescal.model.spec import ModelSpec
 
-__all__ = ["FitBatch", "fit_many"]
-
-#: backends with a vectorised path (:mod:`bayescal.inference.backends`)
-BATCH_BACKENDS = tuple(backends.names(batched=True))
+__all__ = ["FitBatch", "fit_many", "fit_models", "with_data"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,17 +48,13 @@ class FitBatch:
     models : tuple of CalibrationModel
         One per dataset, in input order.
     backend : str
-        ``nuts`` or ``laplace``.
+        The backend's name (:mod:`bayescal.inference.registry`).
     seeds : tuple of int
         Seed of each dataset's fit.
-    draws : dict of str to ndarray
-        Constrained sampled parameters, shape ``(dataset, chain, draw, ...)``
-        in the model's scaled units (as in ``posterior.nc``).
-    diagnostics : pandas.DataFrame
-        Per dataset: ``divergences``, ``retried`` (chains rerun with smaller
-        steps after divergences, see ``InferenceSpec.retry_target_accept``),
-        ``max_rhat``, ``min_ess_bulk``, ``min_ess_tail``, ``map_ok``,
-        ``max_abs_residual_z``, ``misfit`` (the misfit problems, empty when none), ``converged`` and ``ok``.
+    samples : tuple of Draws
+        Each dataset's unconstrained draws and its sampler's numbers.
+    modes : tuple of LaplaceResult
+        Each dataset's posterior mode and Laplace covariance.
     timings : dict
         Wall seconds of the stages, for the whole batch.
     """
@@ -71,17 +62,91 @@ class FitBatch:
     models: tuple[CalibrationModel, ...]
     backend: str
     seeds: tuple[int, ...]
-    draws: dict[str, np.ndarray]
-    diagnostics: pd.DataFrame
+    samples: tuple[Draws, ...]
+    modes: tuple[LaplaceResult, ...]
     timings: dict
-    _program: Program = field(repr=False)
-    _z: np.ndarray = field(repr=False)
-    _laplace: tuple[LaplaceResult, ...] = field(repr=False)
-    _stats: tuple[dict, ...] = field(repr=False)
-    _extra: tuple[dict, ...] = field(repr=False)
+    program: Program = field(repr=False)
 
     def __len__(self) -> int:
         return len(self.models)
+
+    # ------------------------------------------------------------------ one dataset
+    def _sites(self, i: int) -> dict[str, np.ndarray]:
+        """Dataset ``i``'s constrained sites (sampled and deterministic), ``(chain, draw, ...)``."""
+        chains, draws, dim = self.samples[i].z.shape
+        with_data = self.program.constrain(self.samples[i].z.reshape(-1, dim), self.models[i].data)
+        return {k: np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]) for k, v in with_data.items()}
+
+    @computes
+    def physical(self, i: int) -> dict[str, np.ndarray]:
+        """Dataset ``i``'s reported quantities (``gain``, ``A_abs``, ...), ``(chain, draw, ...)``,
+        without building a full :class:`~bayescal.fitting.result.Fit` (the same draws ``fit(i)`` reports)."""
+        return physical_draws(self.models[i], self._sites(i), self.seeds[i])
+
+    @computes
+    def fit(self, i: int, strict: bool = False) -> Fit:
+        """Dataset ``i`` as a full :class:`~bayescal.fitting.result.Fit` (same draws; physical quantities,
+        outlier, misfit and leave-one-setting-out checks, least-squares baseline, ``save`` and reports)."""
+        model = self.models[i]
+        spec = model.spec
+        lsq = lsq_baseline(model.table, orders=range(1, spec.response.order + 1), full_scale=spec.full_scale)
+        timings = dict(self.timings) if len(self) == 1 else {"batch_" + k: v for k, v in self.timings.items()}
+        return finish(
+            model, self.program, self.samples[i], self.backend, self.seeds[i], self.modes[i], lsq, timings, strict
+        )
+
+    # ------------------------------------------------------------- the batch's verdict
+    @cached_property
+    def _checked(self) -> tuple[dict[str, np.ndarray], np.ndarray, list[list[str]], list]:
+        """Sampled sites per dataset ``(dataset, chain, draw, ...)``, each dataset's largest posterior
+        predictive |z| over its rows, its misfit problems and its backend's verdict on its draws."""
+        backend = backends.get(self.backend)
+        stacked: dict[str, list] = {}
+        worst, misfits, verdicts = np.empty(len(self)), [], []
+        for i, m in enumerate(self.models):
+            sites = self._sites(i)
+            flat = {k: v.reshape((-1,) + v.shape[2:]) for k, v in sites.items()}
+            rows = row_summaries(flat)
+            resid = (np.asarray(m.data.y) - rows["mean"]) / np.sqrt(rows["var"])
+            worst[i] = float(np.max(np.abs(np.where(np.asarray(m.data.censored), 0.0, resid))))
+            excess = flat["excess"] * m.layout.dn_scale if "excess" in flat else None
+            misfits.append(misfit_of(m, rows, excess)[0])
+            sampled = {k: v for k, v in sites.items() if k in SAMPLED}
+            verdicts.append(backend.verdict(self.samples[i], sampled, m.spec, self.modes[i]))
+            for k, v in sampled.items():
+                stacked.setdefault(k, []).append(v)
+        return {k: np.stack(v) for k, v in stacked.items()}, worst, misfits, verdicts
+
+    @property
+    def draws(self) -> dict[str, np.ndarray]:
+        """Constrained sampled parameters, shape ``(dataset, chain, draw, ...)`` in the model's scaled
+        units (as in ``posterior.nc``)."""
+        return self._checked[0]
+
+    @cached_property
+    def diagnostics(self) -> pd.DataFrame:
+        """Per dataset: ``map_ok``, ``max_abs_residual_z``, ``misfit`` (the misfit problems, empty when
+        none), the sampler's ``divergences``, ``retried`` (NUTS chains rerun with smaller steps after
+        divergences), ``max_rhat``, ``min_ess_bulk``, ``min_ess_tail``, ``sampled`` (the backend's
+        verdict on its draws), ``converged`` (and no outlying row) and ``ok`` (and no misfit)."""
+        _, worst, misfits, verdicts = self._checked
+        frame = pd.DataFrame(
+            {
+                "map_ok": [r.converged and r.positive_definite for r in self.modes],
+                "max_abs_residual_z": worst,
+                "misfit": ["; ".join(p) for p in misfits],
+                "divergences": [d.divergences for d in self.samples],
+                "retried": ["retried" in d.extra for d in self.samples],
+                "max_rhat": [v.max_rhat for v in verdicts],
+                "min_ess_bulk": [v.min_ess_bulk for v in verdicts],
+                "min_ess_tail": [v.min_ess_tail for v in verdicts],
+            }
+        )
+        sampled = frame["map_ok"].to_numpy() & np.array([v.ok for v in verdicts])
+        frame["sampled"] = sampled  # the posterior was computed correctly, whatever the rows say
+        frame["converged"] = sampled & (worst <= OUTLIER_Z)  # the inference is trustworthy (what SBC asks)
+        frame["ok"] = frame["converged"] & np.array([not p for p in misfits])  # ... and the model fits (fit() asks)
+        return frame
 
     @property
     def ok(self) -> np.ndarray:
@@ -90,41 +155,10 @@ class FitBatch:
 
     @property
     def converged(self) -> np.ndarray:
-        """Per dataset: the inference passed its checks (MAP, R-hat, ESS, divergences, outliers),
+        """Per dataset: the inference passed its checks (MAP, the backend's verdict, outliers),
         whatever the misfit checks say.  Datasets drawn from the model's own prior (SBC) may carry
         an excess scatter far above the noise floor, which ``ok`` reports as misfit."""
         return self.diagnostics["converged"].to_numpy()
-
-    @computes
-    def physical(self, i: int) -> dict[str, np.ndarray]:
-        """Dataset ``i``'s reported quantities (``gain``, ``A_abs``, ...), ``(chain, draw, ...)``,
-        without building a full :class:`~bayescal.fitting.fit.Fit` (the same draws ``fit(i)`` reports)."""
-        model = self.models[i]
-        chains, draws, dim = self._z[i].shape
-        sites = self._program.constrain(self._z[i].reshape(-1, dim), model.data)
-        sites = {k: np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]) for k, v in sites.items()}
-        return physical_draws(model, sites, self.seeds[i])
-
-    @computes
-    def fit(self, i: int, strict: bool = False) -> Fit:
-        """Dataset ``i`` as a full :class:`~bayescal.fitting.fit.Fit` (same draws; physical quantities,
-        outlier check, least-squares baseline, ``save`` and reports)."""
-        model = self.models[i]
-        spec = model.spec
-        lsq = lsq_baseline(model.table, orders=range(1, spec.response.order + 1), full_scale=spec.full_scale)
-        stats = self._stats[i]
-        divergences = int(np.sum(stats["diverging"])) if stats else 0
-        return _finish(
-            model,
-            self._program,
-            Draws(self._z[i], divergences, stats, dict(self._extra[i])),
-            self.backend,
-            self.seeds[i],
-            self._laplace[i],
-            lsq,
-            {"batch_" + k: v for k, v in self.timings.items()},
-            strict,
-        )
 
 
 @computes
@@ -136,6 +170,8 @@ def fit_many(
     seed: int = 0,
     seeds: Sequence[int] | None = None,
     progress: Callable[[int], None] | None = None,
+    iterations: Callable[[int], None] | None = None,
+    stage: Callable[[str], None] | None = None,
     vectorize: bool | None = None,
 ) -> FitBatch:
     """Fit ``spec`` to every table with one compiled program per stage.
@@ -145,12 +181,17 @@ def fit_many(
     tables : sequence of MeasurementTable
         Datasets of one structure: same rows per setting, channels, gain
         settings and levels (the values may differ).
-    backend : {"nuts", "laplace"}
+    backend : str
+        Any posterior backend (``nuts``, ``laplace``, ``emcee``, ``blackjax``).
     seed, seeds : int, sequence of int
         Dataset ``i`` is fitted with ``seeds[i]`` (default ``seed + i``):
         the same random numbers ``fit(tables[i], spec, backend, seed=seeds[i])`` uses.
     progress : callable, optional
         ``progress(datasets_done)``.
+    iterations : callable, optional
+        ``iterations(done)``: the sampler's iterations of a single dataset (a progress bar of one fit).
+    stage : callable, optional
+        ``stage(message)`` as each stage starts.
     vectorize : bool, optional
         Run the MAP searches as one vmapped program (see :func:`fit_models`).
 
@@ -159,13 +200,16 @@ def fit_many(
     SpecError
         Unknown backend, or a table whose structure differs from the first's.
     """
-    if backend not in BATCH_BACKENDS:
-        raise SpecError(f"fit_many supports backends {', '.join(BATCH_BACKENDS)}; got '{backend}'")
+    if backend not in backends.names():
+        raise SpecError(f"unknown backend '{backend}'; expected one of {', '.join(backends.names())}")
     if not tables:
         raise SpecError("fit_many needs at least one table")
     if backend == "laplace":
         refuse_pooled(spec)
     t0 = time.perf_counter()
+    if stage is not None:
+        rows = f"{len(tables[0])} rows" + (f" x {len(tables)} tables" if len(tables) > 1 else "")
+        stage(f"assembling the model ({rows})")
     models = [build_model(t, spec) for t in tables]
     first = models[0]
     for i, m in enumerate(models[1:], start=1):
@@ -177,7 +221,16 @@ def fit_many(
     seeds = list(range(seed, seed + len(models))) if seeds is None else [int(s) for s in seeds]
     if len(seeds) != len(models):
         raise SpecError(f"{len(seeds)} seeds for {len(models)} tables")
-    return fit_models(models, backend, seeds, progress, vectorize=vectorize, prepare_s=time.perf_counter() - t0)
+    return fit_models(
+        models,
+        backend,
+        seeds,
+        progress,
+        iterations=iterations,
+        stage=stage,
+        vectorize=vectorize,
+        prepare_s=time.perf_counter() - t0,
+    )
 
 
 @computes
@@ -187,11 +240,13 @@ def fit_models(
     seeds: Sequence[int],
     progress: Callable[[int], None] | None = None,
     *,
+    iterations: Callable[[int], None] | None = None,
+    stage: Callable[[str], None] | None = None,
     vectorize: bool | None = None,
     prepare_s: float = 0.0,
 ) -> FitBatch:
     """:func:`fit_many` on assembled models of one structure (datasets built without tables,
-    e.g. simulated from the prior by :mod:`bayescal.sbc`; their :meth:`FitBatch.fit` would
+    e.g. simulated from the prior by :mod:`bayescal.validation.sbc`; their :meth:`FitBatch.fit` would
     report against the original table, so use ``draws`` and ``diagnostics``).
 
     ``vectorize`` runs the MAP searches as one vmapped program (default: on an
@@ -201,124 +256,38 @@ def fit_models(
     """
     if vectorize is None:
         vectorize = jax.default_backend() != "cpu"
+    say = stage or (lambda message: None)
+    say("finding the posterior mode (the first fit of a model structure compiles it; cached afterwards)")
     program = program_for(models[0])
-    spec = models[0].spec
     timings = {"prepare": prepare_s}
     t = time.perf_counter()
     starts = [initial_point(m, program) for m in models]
     if vectorize:
-        results = laplace_many(program, [m.data for m in models], starts)
+        modes = laplace_many(program, [m.data for m in models], starts)
     else:
-        results = [laplace(program, m.data, s) for m, s in zip(models, starts, strict=True)]
+        modes = [laplace(program, m.data, s) for m, s in zip(models, starts, strict=True)]
     timings["map"] = time.perf_counter() - t
-    extras = [{"map_converged": r.converged, "hessian_positive_definite": r.positive_definite} for r in results]
     t = time.perf_counter()
-    if backend == "nuts":
-        outs: list[NutsDraws] = run_nuts_many(
-            program,
-            [m.data for m in models],
-            [r.mode for r in results],
-            [r.cov for r in results],
-            spec.inference,
-            list(seeds),
-            progress,
+    samples = backends.get(backend).sample_many(
+        models, program, modes, list(seeds), progress=progress, iterations=iterations, stage=say
+    )
+    for draws, mode in zip(samples, modes, strict=True):
+        draws.extra = {"map_converged": mode.converged, "hessian_positive_definite": mode.positive_definite} | (
+            draws.extra
         )
-        for out, extra in zip(outs, extras, strict=True):
-            note_retry(out, spec.inference, extra)
-        z = np.stack([o.z for o in outs])
-        stats = tuple(nuts_stats(o) for o in outs)
-    else:
-        z = []
-        for i, (m, r) in enumerate(zip(models, results, strict=True)):
-            z.append(laplace_z(m, program, r, seeds[i], extras[i]))
-            if progress is not None:
-                progress(i + 1)
-        z = np.stack(z)
-        stats = tuple({} for _ in models)
     timings[backend] = time.perf_counter() - t
-    t = time.perf_counter()
-    draws, resid_z, misfits = _constrained(program, models, z)
-    diagnostics = _diagnostics(draws, stats, results, resid_z, backend, spec, extras, misfits)
-    timings["diagnostics"] = time.perf_counter() - t
+    say("diagnostics, misfit checks and the posterior in physical units")
     return FitBatch(
         models=tuple(models),
         backend=backend,
         seeds=tuple(seeds),
-        draws=draws,
-        diagnostics=diagnostics,
+        samples=tuple(samples),
+        modes=tuple(modes),
         timings=timings,
-        _program=program,
-        _z=z,
-        _laplace=tuple(results),
-        _stats=stats,
-        _extra=tuple(extras),
+        program=program,
     )
 
 
-def _constrained(program: Program, models, z: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, list]:
-    """Sampled sites per dataset ``(dataset, chain, draw, ...)``, each dataset's largest posterior
-    predictive |z| over its rows and its misfit problems (the checks of :func:`bayescal.fitting.fit.fit`)."""
-    n, chains, draws, dim = z.shape
-    out: dict[str, list] = {}
-    worst = np.empty(n)
-    misfits = []
-    for i, m in enumerate(models):
-        sites = program.constrain(z[i].reshape(-1, dim), m.data)
-        rows = row_summaries(sites)
-        resid = (np.asarray(m.data.y) - rows["mean"]) / np.sqrt(rows["var"])
-        worst[i] = float(np.max(np.abs(np.where(np.asarray(m.data.censored), 0.0, resid))))
-        excess = np.asarray(sites["excess"]) * m.layout.dn_scale if "excess" in sites else None
-        misfits.append(misfit_of(m, rows, excess)[0])
-        for k, v in sites.items():
-            if k in SAMPLED:
-                out.setdefault(k, []).append(np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]))
-    return {k: np.stack(v) for k, v in out.items()}, worst, misfits
-
-
-def _diagnostics(draws, stats, results, resid_z, backend: str, spec: ModelSpec, extras, misfits) -> pd.DataFrame:
-    settings = spec.inference
-    n = len(results)
-    frame = pd.DataFrame(
-        {
-            "map_ok": [r.converged and r.positive_definite for r in results],
-            "max_abs_residual_z": resid_z,
-            "misfit": ["; ".join(p) for p in misfits],
-        }
-    )
-    ok = frame["map_ok"].to_numpy().copy()
-    if backend == "laplace":  # the single-fit verdict: MAP converged, integration grid not truncated
-        ok &= np.array([not laplace_problems(r, e) for e, r in zip(extras, results, strict=True)])
-    if backend == "nuts":
-        ds = xr.Dataset(
-            {
-                k: (("dataset", "chain", "draw") + tuple(f"{k}_{j}" for j in range(v.ndim - 3)), v)
-                for k, v in draws.items()
-            }
-        )
-        frame["divergences"] = [int(np.sum(s["diverging"])) for s in stats]
-        frame["retried"] = ["retried" in e for e in extras]
-        frame["max_rhat"] = _per_dataset(az.rhat(ds), np.nanmax, n)
-        frame["min_ess_bulk"] = _per_dataset(az.ess(ds, method="bulk"), np.nanmin, n)
-        frame["min_ess_tail"] = _per_dataset(az.ess(ds, method="tail"), np.nanmin, n)
-        ok &= (
-            (frame["divergences"].to_numpy() == 0)
-            & (frame["max_rhat"].to_numpy() <= settings.max_rhat)
-            & (frame["min_ess_bulk"].to_numpy() >= settings.min_ess)
-            & (frame["min_ess_tail"].to_numpy() >= settings.min_ess)
-        )
-    frame["sampled"] = ok  # the posterior was computed correctly, whatever the rows say
-    ok = ok & (resid_z <= OUTLIER_Z)
-    frame["converged"] = ok  # the inference is trustworthy (what SBC asks)
-    frame["ok"] = ok & np.array([not p for p in misfits])  # ... and the model fits the data (what fit() asks)
-    return frame
-
-
-def _per_dataset(ds: xr.Dataset, reducer, n: int) -> np.ndarray:
-    """Reduce every variable over all dims but ``dataset``, then across variables."""
-    cols = [np.asarray(ds[v]).reshape(n, -1) for v in ds.data_vars]
-    return reducer(np.concatenate(cols, axis=1), axis=1) if cols else np.full(n, np.nan)
-
-
-def _replace_data(model: CalibrationModel, **arrays) -> CalibrationModel:
+def with_data(model: CalibrationModel, **arrays) -> CalibrationModel:
     """``model`` with some data arrays replaced (same shapes: same compiled program)."""
     return replace(model, data=model.data._replace(**arrays))

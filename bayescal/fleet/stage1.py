@@ -22,7 +22,7 @@ import numpy as np
 
 from bayescal.errors import SpecError
 from bayescal.fitting.batch import FitBatch, fit_many
-from bayescal.fitting.fit import Fit
+from bayescal.fitting.result import Fit
 from bayescal.fleet.units import FleetTable
 from bayescal.model.spec import ModelSpec
 

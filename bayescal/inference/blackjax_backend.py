@@ -25,7 +25,7 @@ from bayescal._config import computes
 from bayescal.inference.diagnostics import mcmc_diagnostics
 from bayescal.inference.laplace import covariance_factor
 from bayescal.inference.program import Program
-from bayescal.inference.registry import Draws, register
+from bayescal.inference.registry import Draws, OneByOne, register
 from bayescal.inference.samplers import chains_dataset
 
 __all__ = ["BlackjaxNutsBackend", "run_blackjax"]
@@ -121,7 +121,7 @@ def run_blackjax(program: Program, data, start, cov, settings, seed: int, progre
 
 
 @dataclass(frozen=True)
-class BlackjaxNutsBackend:
+class BlackjaxNutsBackend(OneByOne):
     """BlackJAX NUTS with window adaptation, in Laplace-whitened coordinates."""
 
     name: str = "blackjax"

@@ -136,11 +136,7 @@ def run_nuts(
         ``progress(iterations_done)``, called every 50 iterations (warmup
         included) from the running program.
     """
-    _Progress.active = _Progress(progress, settings.chains)
-    try:
-        return run_nuts_many(program, [data], [start], [cov], settings, [seed])[0]
-    finally:
-        _Progress.active = None
+    return run_nuts_many(program, [data], [start], [cov], settings, [seed], iterations=progress)[0]
 
 
 @computes
@@ -152,6 +148,8 @@ def run_nuts_many(
     settings: InferenceSpec,
     seeds: list[int],
     done=None,
+    *,
+    iterations=None,
 ) -> list[NutsDraws]:
     """:func:`run_nuts` for many datasets of one structure: one compiled chain program, every
     (dataset, chain) pair queued on one thread pool, so all cores stay busy.
@@ -159,8 +157,17 @@ def run_nuts_many(
     Dataset ``i`` gets exactly the chains ``run_nuts(..., seed=seeds[i])`` would.
     Datasets whose chains diverged are run once more at
     ``settings.retry_target_accept`` (their ``first_divergences`` says so).
-    ``done(n)`` is called as datasets finish.
+    ``done(n)`` is called as datasets finish; ``iterations(k)`` every 50 iterations of the
+    slowest chain (warmup included).
     """
+    _Progress.active = _Progress(iterations, settings.chains * len(datas)) if iterations is not None else None
+    try:
+        return _run_many(program, datas, starts, covs, settings, seeds, done)
+    finally:
+        _Progress.active = None
+
+
+def _run_many(program, datas, starts, covs, settings, seeds, done) -> list[NutsDraws]:
     n = settings.chains
     run = _compiled(
         program, (settings.dense_mass, settings.target_accept, settings.max_tree_depth, settings.warmup, settings.draws)
@@ -172,7 +179,8 @@ def run_nuts_many(
         keys = jax.random.split(k_chains, n)
         chol = jnp.asarray(covariance_factor(np.asarray(cov)))
         center = jnp.asarray(start)
-        jobs += [(c, keys[c], 0.5 * jitter[c], data, center, chol) for c in range(n)]
+        first = len(jobs)
+        jobs += [(first + c, keys[c], 0.5 * jitter[c], data, center, chol) for c in range(n)]
 
     finished, lock = [0] * len(datas), threading.Lock()
 
@@ -201,13 +209,14 @@ def run_nuts_many(
     if again and settings.retry_target_accept > settings.target_accept:
         # divergences: a region of high curvature (a scale near zero); rerun those datasets once with smaller steps
         retry = replace(settings, target_accept=settings.retry_target_accept)
-        redo = run_nuts_many(
+        redo = _run_many(
             program,
             [datas[i] for i in again],
             [starts[i] for i in again],
             [covs[i] for i in again],
             retry,
             [seeds[i] for i in again],
+            None,
         )
         for i, out in zip(again, redo, strict=True):
             outs[i] = out._replace(first_divergences=int(outs[i].diverging.sum()))

@@ -16,8 +16,8 @@ import xarray as xr
 from bayescal.inference.diagnostics import Diagnostics, mcmc_diagnostics
 from bayescal.inference.emcee_backend import run_emcee
 from bayescal.inference.laplace import integrated_draws, laplace_draws
-from bayescal.inference.nuts import run_nuts
-from bayescal.inference.registry import SHIPPED, Draws, register
+from bayescal.inference.nuts import run_nuts_many
+from bayescal.inference.registry import SHIPPED, Draws, OneByOne, register
 
 __all__ = [
     "LaplaceBackend",
@@ -95,7 +95,7 @@ def chains_dataset(posterior: dict) -> xr.Dataset:
 
 
 @dataclass(frozen=True)
-class LaplaceBackend:
+class LaplaceBackend(OneByOne):
     """Gaussian at the mode (the fast path; the excess-scatter scale integrated on a grid)."""
 
     name: str = "laplace"
@@ -117,20 +117,35 @@ class NutsBackend:
     name: str = "nuts"
     batched: bool = SHIPPED["nuts"][1]
 
-    def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
-        inf = model.spec.inference
-        stage(f"sampling: NUTS, {inf.chains} chains x ({inf.warmup} warmup + {inf.draws} draws)")
-        out = run_nuts(program, model.data, mode.mode, mode.cov, inf, seed, progress)
-        extra: dict = {}
-        note_retry(out, inf, extra)
-        return Draws(out.z, int(out.diverging.sum()), nuts_stats(out), extra)
+    def sample_many(self, models, program, modes, seeds, *, progress=None, iterations=None, stage=None) -> list[Draws]:
+        """Every (dataset, chain) pair on one thread pool (:func:`~bayescal.inference.nuts.run_nuts_many`)."""
+        inf = models[0].spec.inference
+        if stage is not None:
+            many = f"{len(models)} datasets x " if len(models) > 1 else ""
+            stage(f"sampling: NUTS, {many}{inf.chains} chains x ({inf.warmup} warmup + {inf.draws} draws)")
+        outs = run_nuts_many(
+            program,
+            [m.data for m in models],
+            [r.mode for r in modes],
+            [r.cov for r in modes],
+            inf,
+            list(seeds),
+            progress,
+            iterations=iterations,
+        )
+        draws = []
+        for out in outs:
+            extra: dict = {}
+            note_retry(out, inf, extra)
+            draws.append(Draws(out.z, int(out.diverging.sum()), nuts_stats(out), extra))
+        return draws
 
     def verdict(self, draws: Draws, posterior: dict, spec, mode) -> Diagnostics:
         return mcmc_diagnostics(chains_dataset(posterior), draws.divergences, spec.inference, draws.extra)
 
 
 @dataclass(frozen=True)
-class EmceeBackend:
+class EmceeBackend(OneByOne):
     """emcee's affine-invariant ensemble, walkers started around the mode."""
 
     name: str = "emcee"

@@ -66,6 +66,9 @@ class Truth:
         True/nominal radiance scale; None draws ``exp(N(0, common_rel))``.
     level_rel : float
         Standard deviation of the per-level relative errors drawn.
+    effects : dict
+        Optional effect (spec section name) -> its true parameters, read by the effect's
+        ``true_factor`` (``[truth.effects.responsivity] coefficient_per_c = 0.003``).
     """
 
     response: dict[str, tuple[float, ...]]
@@ -82,6 +85,7 @@ class Truth:
     level_rel: float = 0.0
     dark_doubling_c: float | None = None  # dark current doubles every this many degC (None: no T effect)
     temperature_ref_c: float = 20.0
+    effects: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ from scipy import stats as sstats
 
 from bayescal._config import computes
 from bayescal.errors import TableError
+from bayescal.model.components.noise import Noise
 
 __all__ = ["MapSet", "SensorMaps", "apply_maps", "noise_model"]
 
@@ -186,7 +187,7 @@ def _kernel(parts: bool):
         n_frames, shot_k, dark_var, sys_rel, x0, dx, z = (scalars[i] for i in range(7))
         above = dn.astype(jnp.float32) - dark
         s = above * r_inv
-        var = (jnp.maximum(above, 0) * shot_k + dark_var) / n_frames
+        var = Noise.reading_variance(Noise.temporal_variance(above, dark_var, shot_k, jnp), n_frames)
         rand = jnp.sqrt((var + var_map + s * s * var_gain) * (r_inv * r_inv))
         med_t, lo_t, hi_t = tables[0], tables[1], tables[2]
         last = med_t.shape[0] - 1

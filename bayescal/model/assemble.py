@@ -15,12 +15,23 @@ import numpy as np
 import numpyro
 
 from bayescal.io.table import MeasurementTable
-from bayescal.model.components import Dark, Noise, Response, Saturation, SettingFactors, Sphere
+from bayescal.model.components import (
+    EFFECTS,
+    Component,
+    Dark,
+    Effect,
+    Noise,
+    Response,
+    Saturation,
+    SettingFactors,
+    Sphere,
+    StimulusFactor,
+)
 from bayescal.model.components.settings import KINDS
 from bayescal.model.data import Layout, ModelData, prepare
 from bayescal.model.spec import ModelSpec
 
-__all__ = ["Parts", "CalibrationModel", "build_model"]
+__all__ = ["Parts", "CalibrationModel", "build_model", "numpyro_model"]
 
 
 @dataclass(frozen=True)
@@ -33,11 +44,13 @@ class Parts:
     sphere: Sphere
     saturation: Saturation
     settings: SettingFactors
+    effects: tuple[Effect, ...] = ()
 
     @classmethod
-    def from_spec(cls, spec: ModelSpec, layout: Layout, level_sigma: np.ndarray) -> Parts:
-        """Pick and configure the components the spec asks for."""
+    def from_spec(cls, spec: ModelSpec, layout: Layout, level_sigma: np.ndarray, frame=None) -> Parts:
+        """Pick and configure the components the spec asks for (the effects the table supports)."""
         n_levels = len(layout.levels)
+        effects = () if frame is None else _effects(spec, frame)
         return cls(
             response=Response(spec.response, len(layout.channels)),
             dark=Dark(spec.dark, len(layout.channels), len(layout.gain_values), layout.dn_scale),
@@ -45,39 +58,27 @@ class Parts:
             sphere=Sphere(spec.sphere, n_levels, bool(np.any(level_sigma > 0))),
             saturation=Saturation(spec.saturation),
             settings=_settings(spec, layout),
+            effects=effects,
         )
+
+    @property
+    def components(self) -> tuple[Component, ...]:
+        """Every component, in report order."""
+        return (self.response, self.dark, self.sphere, self.noise, self.saturation, self.settings, *self.effects)
+
+    @property
+    def factors(self) -> tuple[StimulusFactor, ...]:
+        """The factors on the effective stimulus: the sphere's level errors, the settings, the effects."""
+        return (self.sphere, self.settings, *self.effects)
 
     def describe(self) -> list[str]:
         """Human-readable list of what the model contains."""
-        r, d, n, s = self.response, self.dark, self.noise, self.sphere
-        items = [f"response: order {r.spec.order}" + (", pooled nonlinearity" if r.n_terms and r.spec.pooled else "")]
-        items.append(
-            f"dark: {d.spec.gain_dependence}"
-            + (", exposure slope" if d.spec.exposure_slope else "")
-            + (", drift over the run" if d.spec.drift else "")
-        )
-        items.append(
-            f"noise: {n.spec.kind}" + (f", excess (scale {n.spec.excess_dn:g} DN)" if n.spec.excess_dn else "")
-        )
-        items.append(
-            f"sphere: common {s.spec.common_rel:.1%} folded in"
-            + (f", {s.n_levels} level errors" if s.per_level else "")
-        )
-        items.append("saturation: censored" if self.saturation.spec.censor else "saturation: not modelled")
-        active = self.settings.active()
-        sizes = dict(self.settings.sizes)
-        items.append(
-            "settings: "
-            + (
-                ", ".join(
-                    f"{k} factors ({sizes[k]} values, tolerance {getattr(self.settings.spec, KINDS[k][2]):.1%})"
-                    for k in active
-                )
-                if active
-                else "exact (nominal)"
-            )
-        )
-        return items
+        return [c.describe() for c in self.components]
+
+
+def _effects(spec: ModelSpec, frame) -> tuple[Effect, ...]:
+    built = (cls.build(spec.effect(cls.section), spec, frame) for cls in EFFECTS)
+    return tuple(e for e in built if e is not None)
 
 
 def _settings(spec: ModelSpec, layout: Layout) -> SettingFactors:
@@ -93,20 +94,30 @@ def _settings(spec: ModelSpec, layout: Layout) -> SettingFactors:
 
 @lru_cache(maxsize=64)
 def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
-    """The numpyro model for one structure (cached, so compilations are reused)."""
+    """The numpyro model for one structure (cached, so compilations are reused)::
+
+    DN = dark + S(u * factors) (clipped at full scale) + noise
+    """
 
     def model(data: ModelData) -> None:
-        gain, eta = parts.response.sample()
-        multiplier = parts.sphere.sample(data) * parts.settings.sample(data)
-        signal = numpyro.deterministic(
-            "row_signal", parts.response.signal(gain, eta, data.u * multiplier, data.channel)
-        )
+        coef = parts.response.sample()
+        multiplier = 1.0
+        for factor in parts.factors:
+            multiplier = multiplier * factor.sample(data)
+        x = data.u * multiplier
+        signal = numpyro.deterministic("row_signal", parts.response.signal(coef[data.channel], x, _jnp()))
         offset = parts.dark.sample(data)
         var_mean = parts.noise.sample(data, signal)
-        var_pix = parts.noise.nominal_pixel_variance(data, signal)
+        var_pix = parts.noise.nominal_pixel_variance(data, signal, _jnp())
         parts.saturation.observe(data, offset + signal, signal, var_pix, var_mean)
 
     return model
+
+
+def _jnp():
+    import jax.numpy as jnp
+
+    return jnp
 
 
 @dataclass(frozen=True)
@@ -142,5 +153,6 @@ def build_model(table: MeasurementTable, spec: ModelSpec) -> CalibrationModel:
     """Validate ``table`` against ``spec`` and assemble the model."""
     spec = resolve_for_table(spec, table)
     data, layout = prepare(table, spec)
-    parts = Parts.from_spec(spec, layout, np.asarray(data.level_sigma))
-    return CalibrationModel(spec=spec, table=table, data=data, layout=layout, parts=parts)
+    parts = Parts.from_spec(spec, layout, np.asarray(data.level_sigma), table.frame)
+    extra = {k: np.asarray(v, dtype=float) for e in parts.effects for k, v in e.inputs(table.frame).items()}
+    return CalibrationModel(spec=spec, table=table, data=data._replace(extra=extra), layout=layout, parts=parts)

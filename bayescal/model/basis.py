@@ -37,7 +37,7 @@ def shifted_legendre_monomials(order: int) -> np.ndarray:
     return out
 
 
-def response_monomials(gain: np.ndarray, eta: np.ndarray | None, order: int) -> np.ndarray:
+def response_monomials(gain, eta, order: int, xp=np):
     """Coefficients ``c_m`` of the signal ``S(u) = sum_m c_m u^m``, ``m = 0..order``.
 
     The signal is ``S = v (1 + sum_k eta_k p_k(v))`` with ``v = gain * u``.
@@ -50,21 +50,23 @@ def response_monomials(gain: np.ndarray, eta: np.ndarray | None, order: int) -> 
         Nonlinearity coefficients (``None`` for a linear response).
     order : int
         Polynomial order p.
+    xp : module
+        Array namespace (``numpy``, or ``jax.numpy`` inside the model).
 
     Returns
     -------
     array (..., order + 1)
         Monomial coefficients in ``u``; ``c_0 = 0`` (the offset is the dark model's).
     """
-    gain = np.asarray(gain, dtype=float)
-    c_v = np.zeros(gain.shape + (order + 1,))
-    c_v[..., 1] = 1.0
+    gain = xp.asarray(gain, dtype=float)
+    unit = np.zeros(order)
+    unit[0] = 1.0  # the linear term, v
+    c_v = xp.broadcast_to(xp.asarray(unit), gain.shape + (order,))
     if order > 1 and eta is not None:
-        q = shifted_legendre_monomials(order)
-        # v * p_k(v): shift each p_k up one power
-        c_v[..., 1:] += np.einsum("...k,kj->...j", np.asarray(eta, dtype=float), q)
-    powers = np.arange(order + 1)
-    return c_v * gain[..., None] ** powers
+        # v * p_k(v): each p_k shifted up one power (p_k(0) = 0, so nothing reaches the constant)
+        c_v = c_v + xp.einsum("...k,kj->...j", xp.asarray(eta, dtype=float), shifted_legendre_monomials(order))
+    c_v = xp.concatenate([xp.zeros(gain.shape + (1,)), c_v], axis=-1)
+    return c_v * gain[..., None] ** np.arange(order + 1)
 
 
 def rescale_monomials(coef: np.ndarray, scale: float | np.ndarray) -> np.ndarray:

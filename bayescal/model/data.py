@@ -19,7 +19,7 @@ from bayescal.errors import TableError
 from bayescal.io.table import MeasurementTable
 from bayescal.model.spec import ModelSpec
 
-__all__ = ["ModelData", "Layout", "prepare", "effective_stimulus"]
+__all__ = ["ModelData", "Layout", "prepare", "effective_stimulus", "check_levels_per_channel"]
 
 
 class ModelData(NamedTuple):
@@ -44,6 +44,7 @@ class ModelData(NamedTuple):
     temp: np.ndarray  # temperature - dark.temperature_ref_c (degC; 0 without a temperature model)
     time: np.ndarray  # time_s / the run's duration (0 without a drift model): 0 at the start of the run
     keep: np.ndarray  # bool, the row's reading enters the likelihood (False: held out, predicted only)
+    extra: dict = {}  # per-row inputs of the optional effects (Effect.inputs), by name
 
 
 @dataclass(frozen=True)
@@ -125,7 +126,7 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
     threshold = (dn_scale - spec.saturation.margin_dn) / dn_scale
     saturated = y >= threshold
     censored = saturated & spec.saturation.censor
-    _check_levels_per_channel(df, dark, saturated, x, spec)
+    check_levels_per_channel(df, dark, saturated, x, spec)
 
     channels = tuple(table.channels)
     ch_index = {c: i for i, c in enumerate(channels)}
@@ -213,7 +214,7 @@ def _needed(df, column: str, option: str, meaning: str) -> np.ndarray:
     return df[column].to_numpy(dtype=float)
 
 
-def _check_levels_per_channel(df, dark: np.ndarray, saturated: np.ndarray, x: np.ndarray, spec: ModelSpec) -> None:
+def check_levels_per_channel(df, dark: np.ndarray, saturated: np.ndarray, x: np.ndarray, spec: ModelSpec) -> None:
     need = spec.response.order + 1
     for channel in dict.fromkeys(df["channel"]):
         mine = (df["channel"].to_numpy() == channel) & ~dark

@@ -1,10 +1,11 @@
 """Physical quantities from scaled posterior draws.
 
-Each component reports its own quantities; this module adds the reference
-offset ``A0`` and folds the sphere's common scale into the coefficients
-(docs/architecture.md, section 4), giving the papers' table ``DN = A0 + A1 L + ...`` at
-the reference setting both relative to the sphere (comparable with least
-squares on the same sphere readings) and absolute.
+Each component reports its own quantities (``Component.physical``); this module adds the
+papers' table ``DN = A0 + A1 L + ...`` at the reference setting, which three components make
+together: the response's monomials, the dark component's level at the reference setting
+(``A0``) and the sphere's common scale folded into the coefficients (docs/architecture.md,
+section 4), both relative to the sphere (comparable with least squares on the same sphere
+readings) and absolute.
 """
 
 from __future__ import annotations
@@ -12,67 +13,40 @@ from __future__ import annotations
 import numpy as np
 
 from bayescal.model.assemble import CalibrationModel
+from bayescal.model.components import Context, reported_dims, site_dims
 from bayescal.model.components.sphere import fold_common_scale
 
-__all__ = ["physical_draws", "DIMS"]
+__all__ = ["physical_draws", "dims"]
 
-#: dimension names of each reported variable (beyond chain, draw)
-DIMS: dict[str, list[str]] = {
-    "G": ["channel"],
-    "eta": ["channel", "nl_term"],
-    "b0": ["channel", "gain_setting"],
-    "b1": ["gain_setting"],
-    "level_z": ["level"],
-    "gain": ["channel"],
-    "gain_rel": ["channel"],
-    "A_rel": ["channel", "power"],
-    "A_abs": ["channel", "power"],
-    "nonlinearity": ["channel", "nl_term"],
-    "dark_offset": ["channel", "gain_setting"],
-    "dark_slope": ["gain_setting"],
-    "dark_offset_ref": ["channel"],
-    "level_error": ["level"],
-    "gain_log": ["gain_free"],
-    "exposure_log": ["exposure_free"],
-    "tdi_log": ["tdi_free"],
-    "setting_factor_gain": ["lit_gain_setting"],
-    "setting_factor_exposure": ["exposure_setting"],
-    "setting_factor_tdi": ["tdi_setting"],
-}
+
+def dims() -> dict[str, list[str]]:
+    """Dimension names of every sampled site and reported quantity (beyond chain, draw)."""
+    return {k: list(v) for k, v in {**site_dims(), **reported_dims()}.items()}
 
 
 def physical_draws(model: CalibrationModel, draws: dict[str, np.ndarray], seed: int) -> dict[str, np.ndarray]:
     """Reported quantities, each with leading ``(chain, draw)`` dims.
 
-    ``seed`` drives the draws of the sphere's common scale.
+    ``seed`` drives the draws of the sphere's common scale and of the settings' spreads.
     """
     spec, layout, parts = model.spec, model.layout, model.parts
+    ctx = Context(layout, np.asarray(model.data.level_sigma), seed)
     out: dict[str, np.ndarray] = {}
-    resp = parts.response.physical(draws, layout.x_scale, layout.dn_scale)
+    for component in parts.components:
+        out.update(component.physical(draws, ctx))
     ref = spec.reference
+    measured = parts.dark.proportional or ref.gain in layout.gain_values
     a0 = np.stack(
         [
-            parts.dark.offset_dn(draws, c, ref.gain, ref.exposure_s, layout, ref.gain)
-            if parts.dark.proportional or ref.gain in layout.gain_values
+            parts.dark.offset_at(draws, c, ref.gain, ref.exposure_s, layout, ref.gain)
+            if measured
             else np.full(draws["G"].shape[:2], np.nan)
             for c in range(len(layout.channels))
         ],
         axis=-1,
     )
-    coef_rel = resp["A_rel"].copy()
+    coef_rel = out["A_rel"].copy()
     coef_rel[..., 0] = a0
-    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5CA1E]))
-    coef_abs, scale = fold_common_scale(coef_rel, spec.sphere.common_rel, rng)
-    out["gain"] = coef_abs[..., 1]
-    out["gain_rel"] = coef_rel[..., 1]
-    out["A_abs"] = coef_abs
-    out["A_rel"] = coef_rel
-    if "nonlinearity" in resp:
-        out["nonlinearity"] = resp["nonlinearity"]
-    out.update(parts.dark.physical(draws, layout))
-    out.update(parts.sphere.physical(draws, np.asarray(model.data.level_sigma)))
-    out.update(parts.noise.physical(draws))
-    out.update(parts.saturation.physical(draws))
-    out.update(parts.settings.physical(draws, np.random.default_rng(np.random.SeedSequence([seed, 0x5E7]))))
-    out["sphere_scale"] = scale
-    return out
+    coef_abs, scale = fold_common_scale(coef_rel, spec.sphere.common_rel, ctx.rng(0x5CA1E))
+    out.update(gain=coef_abs[..., 1], gain_rel=coef_rel[..., 1], A_abs=coef_abs, A_rel=coef_rel, sphere_scale=scale)
+    return {name: out[name] for name in reported_dims() if name in out}

@@ -1,11 +1,16 @@
 """Simulate calibration measurements of a camera with known truth.
 
-The forward model is the measurement equation of docs/architecture.md, section 2, with
-everything the real bench adds: the sphere's common scale error and per-level
-errors shared across channels, read/shot/quantisation noise averaged over
-frames and pixels, excess scatter, partial and full clipping at full scale
-(each pixel clips separately; the region mean of partially clipped pixels is
-computed in closed form), and integer quantisation of single readings.
+The forward model is the measurement equation of docs/architecture.md, section 2, evaluated by
+the components' own forward functions (the response's polynomial, the dark level, the noise, the
+sphere's and the effects' factors, the ADC's clipping), with everything the real bench adds: the
+sphere's common scale error and per-level errors shared across channels, read/shot/quantisation
+noise averaged over frames and pixels, excess scatter, partial and full clipping at full scale
+(each pixel clips separately; the region mean of partially clipped pixels is computed in closed
+form), and integer quantisation of single readings.
+
+Data from this simulator share the model's assumptions by construction: they test that the
+inference recovers what the model says (simulation-based calibration), not that the model fits
+real cameras; :mod:`bayescal.validation` holds the simulators written apart from the model.
 """
 
 from __future__ import annotations
@@ -14,12 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy.special import ndtr
-from scipy.stats import norm
 
 from bayescal.errors import SpecError
 from bayescal.io.design import Design, Truth
 from bayescal.io.table import MeasurementTable
+from bayescal.model.components import Dark, Noise, Response, Saturation, Sphere, effect
+from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.data import effective_stimulus
 from bayescal.model.spec import ModelSpec
 
@@ -55,6 +60,7 @@ class Simulation:
         gain: float = 1.0,
         tdi_stages: float = 1.0,
         *,
+        temperature_c: float | None = None,
         n_avg: float = 1.0,
         rng: np.random.Generator,
     ) -> np.ndarray:
@@ -64,16 +70,22 @@ class Simulation:
         the pixel's PRNU and integer quantisation.  ``n_avg > 1``: a region
         mean (PRNU averaged away, not quantised).  Clipped to ``[0, full scale]``.
         """
-        stim = np.asarray(stimulus, dtype=float)
-        t, g, m = (np.full(stim.shape, v, dtype=float) for v in (exposure_s, gain, tdi_stages))
-        mu, signal, var_t = _camera(self.truth, spec, np.full(stim.shape, channel, dtype=object), stim, t, g, m)
-        var = var_t / n_avg + self.truth.excess_dn**2
-        if n_avg == 1:
-            var = var + (self.truth.prnu * signal) ** 2
-        out = mu + np.sqrt(var) * rng.standard_normal(stim.shape)
-        if n_avg == 1:
-            out = np.round(out)
-        return np.clip(out, 0.0, spec.full_scale)
+        stim = np.asarray(stimulus, dtype=float).ravel()
+        rows = pd.DataFrame(
+            {
+                "channel": channel,
+                "exposure_s": float(exposure_s),
+                "gain": float(gain),
+                "tdi_stages": float(tdi_stages),
+                "temperature_c": np.nan if temperature_c is None else float(temperature_c),
+            },
+            index=range(stim.size),
+        )
+        mu, signal, var_t = _camera(self.truth, spec, rows, stim)
+        single = n_avg == 1
+        var = Noise.reading_variance(var_t, n_avg, self.truth.excess_dn, self.truth.prnu if single else 0.0, signal)
+        out = Saturation.adc(mu + np.sqrt(var) * rng.standard_normal(stim.size), spec.full_scale, integer=single)
+        return out.reshape(np.shape(stimulus))
 
 
 def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: int = 0) -> Simulation:
@@ -106,20 +118,19 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
     ch = rows["channel"].to_numpy()
     lvl = rows["level_index"].to_numpy()
     nominal = np.where(lvl >= 0, np.asarray(design.levels)[np.maximum(lvl, 0)], 0.0)
-    true_stim = nominal * scale * (1.0 + np.where(lvl >= 0, level_err[np.maximum(lvl, 0)], 0.0))
+    true_stim = nominal * scale * Sphere.factor(np.where(lvl >= 0, level_err[np.maximum(lvl, 0)], 0.0))
     t, g, m, temp = (rows[k].to_numpy() for k in ("exposure_s", "gain", "tdi_stages", "temperature_c"))
-    mu, signal, var_t = _camera(truth, spec, ch, true_stim, t, g, m, temp)
+    mu, signal, var_t = _camera(truth, spec, rows, true_stim)
     n_avg = design.n_frames * design.n_pixels
     if n_avg == 1:
-        reading = mu + np.sqrt(var_t + truth.excess_dn**2) * rng.standard_normal(mu.size)
-        dn_mean = np.clip(np.round(reading), 0, fs)
-    else:
+        reading = mu + np.sqrt(Noise.reading_variance(var_t, 1.0, truth.excess_dn)) * rng.standard_normal(mu.size)
+        dn_mean = Saturation.adc(reading, fs, integer=True)
+    else:  # a region mean: each pixel clips on its own (pixel values spread by noise and PRNU)
         spread = np.sqrt(var_t + (truth.prnu * signal) ** 2)
-        a = (fs - mu) / spread
-        mean_clipped = mu + spread * (a * ndtr(-a) - norm.pdf(a))
-        unclipped = ndtr(a)
-        sd = np.sqrt(var_t * unclipped / n_avg + truth.excess_dn**2 * unclipped)
-        dn_mean = np.clip(mean_clipped + sd * rng.standard_normal(mu.size), 0, fs)
+        mean_clipped = Saturation.clipped_mean(mu, spread, fs)
+        unclipped = Saturation.unclipped_fraction(mu, spread, fs)
+        sd = np.sqrt(Noise.reading_variance(var_t * unclipped, n_avg, truth.excess_dn * np.sqrt(unclipped)))
+        dn_mean = Saturation.adc(mean_clipped + sd * rng.standard_normal(mu.size), fs)
     dof = max(design.n_frames - 1, 1) * design.n_pixels
     dn_var = var_t * rng.chisquare(dof, mu.size) / dof
     df = pd.DataFrame(
@@ -134,7 +145,7 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
             "n_frames": design.n_frames,
             "n_pixels": design.n_pixels,
             "dn_mean": np.round(dn_mean, 3),
-            "dn_var": np.round(np.maximum(dn_var, 1 / 12), 4),
+            "dn_var": np.round(np.maximum(dn_var, QUANTISATION_DN2), 4),
         }
     )
     table = MeasurementTable.from_frame(df, source=f"simulate(seed={seed})")
@@ -142,20 +153,39 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
     return Simulation(table=table, truth=truth, sphere_scale=scale, level_errors=errors)
 
 
-def _camera(truth: Truth, spec: ModelSpec, ch, stimulus, t, g, m, temperature=None):
-    """Expected DN, signal and per-pixel temporal variance of the true camera (docs/architecture.md, section 2)."""
-    x = effective_stimulus(stimulus, t, g, m, spec)
-    signal = np.array([np.polyval(np.r_[truth.response[c][::-1], 0.0], xi) for c, xi in zip(ch, x, strict=True)])
+def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndarray):
+    """Expected DN, signal and per-pixel temporal variance of the true camera at every row (its
+    channel, exposure, gain, TDI stages and temperature; docs/architecture.md, section 2)."""
+    ch = rows["channel"].to_numpy()
+    t, g, m = (rows[k].to_numpy(dtype=float) for k in ("exposure_s", "gain", "tdi_stages"))
+    x = effective_stimulus(stimulus, t, g, m, spec) * _effect_factors(truth, rows)
+    order = max(len(v) for v in truth.response.values())
+    coef = np.zeros((len(rows), order))
+    for c, values in truth.response.items():
+        coef[ch == c, : len(values)] = values
+    signal = Response.signal(coef, x)
     g_rel = g / spec.reference.gain
-    doubling = np.ones_like(t, dtype=float)
-    if truth.dark_doubling_c is not None and temperature is not None:
-        temp = np.where(np.isfinite(temperature), temperature, truth.temperature_ref_c)
-        doubling = np.exp2((temp - truth.temperature_ref_c) / truth.dark_doubling_c)
-    offset = _dark(truth, g, t * doubling, g_rel, spec) + np.array([truth.channel_offset.get(c, 0.0) for c in ch]) * (
-        g_rel if truth.dark_proportional else 1.0
-    )
-    var_t = (truth.read_noise_dn * g_rel) ** 2 + truth.conversion_gain * g_rel * np.maximum(signal, 0) + 1 / 12
-    return offset + signal, signal, var_t
+    warm = 1.0
+    if truth.dark_doubling_c is not None and "temperature_c" in rows:
+        temp = rows["temperature_c"].to_numpy(dtype=float)
+        warm = Dark.doubling(np.where(np.isfinite(temp), temp - truth.temperature_ref_c, 0.0), truth.dark_doubling_c)
+    offset, slope = _dark(truth, g, spec)
+    offset = offset + np.array([truth.channel_offset.get(c, 0.0) for c in ch])
+    dark = Dark.level(offset, slope, t, g_rel if truth.dark_proportional else 1.0, warm)
+    var_t = Noise.pixel_variance(truth.read_noise_dn, truth.conversion_gain, g_rel, signal)
+    return dark + signal, signal, var_t
+
+
+def _effect_factors(truth: Truth, rows: pd.DataFrame) -> np.ndarray | float:
+    """The true factors of the optional effects named in the truth (``[truth.effects.<section>]``)."""
+    factor = 1.0
+    for section, params in truth.effects.items():
+        try:
+            cls = effect(section)
+        except KeyError:
+            raise SpecError(f"[truth.effects] names '{section}', which is not a registered effect") from None
+        factor = factor * cls.true_factor(params, rows)
+    return factor
 
 
 def _rows(design: Design) -> pd.DataFrame:
@@ -180,15 +210,14 @@ def _product(settings, levels, channels):
                 yield s, i, c
 
 
-def _dark(truth: Truth, g: np.ndarray, t: np.ndarray, g_rel: np.ndarray, spec: ModelSpec) -> np.ndarray:
+def _dark(truth: Truth, g: np.ndarray, spec: ModelSpec) -> tuple[np.ndarray, np.ndarray]:
+    """The true dark offset and slope of every row (at the reference gain when proportional)."""
     if truth.dark_proportional:
         ref = spec.reference.gain
         off = truth.dark_offset.get(ref, next(iter(truth.dark_offset.values())))
-        slope = truth.dark_slope.get(ref, 0.0)
-        return (off + slope * t) * g_rel
+        return np.full(g.shape, off), np.full(g.shape, truth.dark_slope.get(ref, 0.0))
     try:
         off = np.array([truth.dark_offset[gi] for gi in g])
     except KeyError as exc:
         raise SpecError(f"truth.dark_offset has no entry for gain {exc.args[0]:g}") from None
-    slope = np.array([truth.dark_slope.get(gi, 0.0) for gi in g])
-    return off + slope * t
+    return off, np.array([truth.dark_slope.get(gi, 0.0) for gi in g])

@@ -17,6 +17,13 @@ from typing import Any, Literal
 
 from bayescal.errors import SpecError
 from bayescal.io.toml import build, dumps, read_toml
+from bayescal.model.components import EFFECTS
+from bayescal.model.components.dark import DarkSpec
+from bayescal.model.components.noise import NoiseSpec
+from bayescal.model.components.response import ResponseSpec
+from bayescal.model.components.saturation import SaturationSpec
+from bayescal.model.components.settings import SettingsSpec
+from bayescal.model.components.sphere import SphereSpec
 
 __all__ = [
     "ModelSpec",
@@ -44,169 +51,6 @@ class Reference:
     exposure_s: float
     gain: float = 1.0
     tdi_stages: float = 1.0
-
-
-@dataclass(frozen=True)
-class ResponseSpec:
-    """Polynomial response in the effective stimulus x = L t M g (seeds 000 eq. 5, 002 eq. 6/11).
-
-    ``order`` 1 is linear; order p adds a relative nonlinearity of degree p-1
-    in the linear signal (fraction of full scale), ``DN = S (1 + n(S))`` with
-    ``S = G x`` (docs/architecture.md, section 2).  ``pooled`` partially pools the
-    nonlinearity across channels (it is a property of the sense node and ADC,
-    shared by all colours); ``gain_prior = "pooled"`` also pools the
-    per-channel log gains.  Pooling is off by default: NUTS does not yet
-    sample the pooled models (the Laplace whitening taken at the mode
-    degenerates in the pooling scales; a fit reports R-hat ~2 and fails
-    loudly), and the Laplace backend refuses them.  Channels are pooled by
-    the fleet hierarchy instead (:class:`FleetSpec`, ``bayescal fleet``), which
-    integrates its scales.
-
-    Priors, in the model's scaled units (docs/architecture.md, section 5): the gain ``G``
-    is the linear signal at the brightest stimulus of the table as a
-    fraction of full scale, log-normal with median ``gain_prior_median``
-    and log-sd ``gain_prior_log_sd`` (``"normal"``: Normal(median,
-    10 median), nearly flat); each nonlinearity coefficient is
-    Normal(0, ``nonlinearity_prior_sd``).  The defaults are weakly
-    informative; a lab that knows its camera class can say so (the SBC runs
-    do, see :mod:`bayescal.sbc`).
-    """
-
-    order: int = 1
-    pooled: bool = False
-    gain_prior: Literal["lognormal", "normal", "pooled"] = "lognormal"
-    gain_prior_median: float = 0.5
-    gain_prior_log_sd: float = 2.0
-    nonlinearity_prior_sd: float = 0.1
-
-
-@dataclass(frozen=True)
-class DarkSpec:
-    """Offset/dark signal: per gain setting, linear in exposure (seed 000 section 5.1).
-
-    ``gain_dependence = "proportional"`` makes the offset scale with the gain
-    factor instead (seed 002 eq. 12, DN = g (... + 28.72)), which also
-    predicts unmeasured gains.  ``pooled`` partially pools the channel
-    offsets (seed 000: channel colour barely matters for dark); off by
-    default, see :class:`ResponseSpec`.
-
-    ``temperature``: the dark current (the exposure slope) doubles every
-    ``T_d`` degC, ``slope(T) = slope(T_ref) 2^((T - T_ref) / T_d)`` (seed 002:
-    about 7 degC), with ``T_d`` log-normal around ``doubling_c`` (relative sd
-    ``doubling_rel_sd``); the table needs a ``temperature_c`` column.
-
-    ``drift``: the dark level drifts linearly over the measurement run (the
-    sensor warming up): ``offset + d * time``, one drift ``d`` (DN over the
-    whole run, prior Normal(0, ``drift_prior_dn``)) shared by every channel and
-    gain; needs a ``time_s`` column.  Offsets then refer to the start of the
-    run.  Without it a drift is absorbed by the dark slope and the setting
-    factors, and ``A0`` is silently biased (validation benchmark).  The
-    default, ``"auto"``, fits the drift whenever the table has ``time_s``.
-
-    Priors (fractions of full scale): each offset Normal(``offset_prior_mean``,
-    ``offset_prior_sd``), each dark slope (per longest exposure of the table)
-    Normal(0, ``slope_prior_sd``).
-    """
-
-    gain_dependence: Literal["per_setting", "proportional"] = "per_setting"
-    exposure_slope: bool = True
-    pooled: bool = False
-    temperature: bool = False
-    temperature_ref_c: float = 20.0
-    doubling_c: float = 7.0
-    doubling_rel_sd: float = 0.4
-    offset_prior_mean: float = 0.05
-    offset_prior_sd: float = 0.25
-    slope_prior_sd: float = 0.05
-    drift: Literal[True, False, "auto"] = "auto"
-    drift_prior_dn: float = 5.0
-
-
-@dataclass(frozen=True)
-class NoiseSpec:
-    """Noise of a row's mean DN (seed 000 eq. 3: N2, N3; seed 002 section 2).
-
-    ``kind = "physical"``: per-pixel variance ``(g r)^2 + K g S + 1/12`` (read
-    noise ``r`` in DN at the reference gain, conversion gain ``K`` in DN/e- at
-    the reference gain, quantisation), divided by ``n_frames * n_pixels``.
-    ``r`` and ``K`` are fixed (from photon transfer): region means carry
-    almost no information about them.  ``kind = "measured"``: the table's
-    ``dn_var`` column is the per-pixel temporal variance.  ``excess_dn`` is the half-normal scale of an extra
-    per-row scatter (lamp drift, model error); 0 turns it off.
-    """
-
-    kind: Literal["physical", "measured"] = "physical"
-    read_noise_dn: float = 2.0
-    conversion_gain: float = 0.1
-    excess_dn: float = 5.0
-
-
-@dataclass(frozen=True)
-class SphereSpec:
-    """Integrating-sphere radiance uncertainty (seed 002 section 4.3: below 3 %).
-
-    ``common_rel``: relative standard uncertainty of the sphere's scale,
-    common to every level; it is exactly degenerate with the gains and is
-    folded in after fitting (docs/architecture.md, section 4).  ``per_level_rel``:
-    relative standard uncertainty of each level's reading, shared by all
-    channels and settings at that level, sampled non-centred (0 turns it off;
-    a ``radiance_u_rel`` column overrides it per level).
-    """
-
-    common_rel: float = 0.03
-    per_level_rel: float = 0.0
-
-
-@dataclass(frozen=True)
-class SaturationSpec:
-    """Clipping at full scale 2^bits - 1 (seed 000 drops a clipped red point by hand).
-
-    With ``censor`` on, rows whose mean reads at or above full scale minus
-    ``margin_dn`` are right-censored.  A row whose pixels partly clip reads
-    below its unclipped mean by a loss that depends on the pixels' spread
-    (:mod:`bayescal.model.components.saturation`).  With ``partial = "window"`` (the
-    default) the loss is bracketed: between that of the temporal noise alone
-    and that at a generous ``prnu_bound`` (three times the typical 1 %).  With
-    ``partial = "model"`` it is computed at the ``prnu`` fraction (state the
-    camera's, e.g. from ``bayescal characterize``), or, with ``learn_prnu``,
-    at a fraction learned from the rows near full scale (log-normal prior of
-    median ``prnu`` and log-sd ``prnu_log_sd``).  On the validation bench a
-    3 % PRNU stated as 1 % under-covered A0/A1 at 0.85 with ``"model"``; the
-    learned fraction read ~2.6 %, but the near-clipped rows, which fit the
-    Gaussian tail of the pixel values to ~0.1 DN, put a sharp wall on it where
-    NUTS left a divergent transition after its retry in 4 of 20 clean fits.
-    """
-
-    censor: bool = True
-    margin_dn: float = 0.5
-    prnu: float = 0.01
-    learn_prnu: bool = False
-    prnu_log_sd: float = 1.0
-    partial: Literal["window", "model"] = "window"
-    prnu_bound: float = 0.03
-
-
-@dataclass(frozen=True)
-class SettingsSpec:
-    """How far a camera's settings may sit from their labels (relative standard deviations).
-
-    The effective gain of each gain step, the effective exposure of each
-    exposure setting and the effective factor of each TDI stage count are
-    random variables around their nominal values, partially pooled per kind
-    (:mod:`bayescal.model.components.settings`).  Each tolerance is the prior mean of
-    that kind's spread of log factors: the lab's statement of how exact its
-    settings are (0: exact, the factors are left out).  The defaults, 7 % for
-    every kind, are the RMS of the log departures the source documents
-    measured: at 1/100 s seed 000's red slope was 5.2 % above the one derived
-    from 1/250 s (Table 2), and seed 002's settings chosen by eq. 12 read 6.6 %
-    above and 8.8 % below their targets (RMS of log factors 0.070).  With 5 %
-    the held-out prediction of a setting 8.8 % low excluded the camera's
-    reading (tests/test_misspecification.py).
-    """
-
-    gain_tolerance: float = 0.07
-    exposure_tolerance: float = 0.07
-    tdi_tolerance: float = 0.07
 
 
 @dataclass(frozen=True)
@@ -335,6 +179,9 @@ class ModelSpec:
         What the table's stimulus column holds.
     reference : Reference
         Setting for the papers' coefficient table.
+    effects : tuple of (str, section)
+        The sections of the optional effects (:data:`bayescal.model.components.EFFECTS`), one per
+        registered effect, by section name (``[responsivity]`` in TOML); :meth:`effect` reads one.
     """
 
     name: str
@@ -350,9 +197,20 @@ class ModelSpec:
     settings: SettingsSpec = field(default_factory=SettingsSpec)
     inference: InferenceSpec = field(default_factory=InferenceSpec)
     fleet: FleetSpec = field(default_factory=FleetSpec)
+    effects: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
+        given = dict(self.effects)
+        unknown = set(given) - {e.section for e in EFFECTS}
+        if unknown:
+            raise SpecError(f"unknown effect section(s) {sorted(unknown)}; registered: {[e.section for e in EFFECTS]}")
+        # every registered effect has its section (its defaults where not given), in registry order
+        object.__setattr__(self, "effects", tuple((e.section, given.get(e.section, e.spec_class())) for e in EFFECTS))
         _check_spec(self)
+
+    def effect(self, section: str) -> Any:
+        """The spec section of the optional effect named ``section``."""
+        return dict(self.effects)[section]
 
     @property
     def full_scale(self) -> float:
@@ -362,11 +220,22 @@ class ModelSpec:
     @classmethod
     def from_dict(cls, data: dict[str, Any], *, source: str = "<dict>") -> ModelSpec:
         """Build a spec from nested dicts (the TOML layout); unknown keys are errors."""
-        return build(cls, data, source)
+        data = dict(data)
+        if "effects" in data:
+            raise SpecError(f"{source}: unknown key 'effects'; an effect is its own table, e.g. [responsivity]")
+        effects = tuple(
+            (e.section, build(e.spec_class, data.pop(e.section), source, e.section + "."))
+            for e in EFFECTS
+            if e.section in data
+        )
+        spec = build(cls, data, source)
+        return dataclasses.replace(spec, effects=effects) if effects else spec
 
     def to_dict(self) -> dict[str, Any]:
         """Nested dict in the TOML layout."""
-        return dataclasses.asdict(self)
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "effects"}
+        out = {k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v for k, v in out.items()}
+        return out | {name: dataclasses.asdict(section) for name, section in self.effects}
 
     def to_toml(self) -> str:
         """Serialise as TOML (round-trips through :func:`load_spec`)."""
@@ -377,13 +246,16 @@ class ModelSpec:
 
         ``spec.replace(response={"order": 2}, sphere={"per_level_rel": 0})``
         """
-        changes = {}
+        changes, effects = {}, dict(self.effects)
         for key, value in sections.items():
-            current = getattr(self, key)
+            current = effects[key] if key in effects else getattr(self, key)
             if isinstance(value, dict) and dataclasses.is_dataclass(current):
                 value = dataclasses.replace(current, **value)
-            changes[key] = value
-        return dataclasses.replace(self, **changes)
+            if key in effects:
+                effects[key] = value
+            else:
+                changes[key] = value
+        return dataclasses.replace(self, **changes, effects=tuple(effects.items()))
 
     def structure_key(self) -> str:
         """Hash of everything that changes the model's structure (not sampler settings)."""

@@ -29,42 +29,12 @@ from pathlib import Path
 import numpy as np
 
 from bayescal.errors import PosteriorError, SpecError, TableError
+from bayescal.model.components import EFFECTS, Dark, FactorTerm, Noise, Response, Saturation
+from bayescal.model.components.noise import QUANTISATION_DN2
+from bayescal.model.components.settings import SettingFactorDraws, SettingFactors
 from bayescal.model.spec import ModelSpec, Reference
 
-__all__ = ["Calibration", "Setting", "CalibratedRange", "SettingFactorDraws"]
-
-#: setting kind -> Setting attribute
-_SETTING_ATTR = {"gain": "gain", "exposure": "exposure_s", "tdi": "tdi_stages"}
-
-
-@dataclass(frozen=True)
-class SettingFactorDraws:
-    """Posterior of one kind's setting factors (:mod:`bayescal.model.components.settings`).
-
-    ``values`` are the nominal values measured with illumination, ``draws``
-    ``(S, len(values))`` their effective factors (1 at the reference) and
-    ``spread`` ``(S,)`` the kind's spread of log factors.
-    """
-
-    kind: str
-    values: tuple[float, ...]
-    draws: np.ndarray
-    spread: np.ndarray
-
-    def factor(self, value: float, reference_value: float) -> np.ndarray:
-        """Factor per draw at a nominal ``value``: its posterior where measured, 1 at the reference,
-        otherwise a draw from the population ``log f ~ Normal(0, spread)`` (the same draws on every
-        call for the same value: seeded by the kind and value)."""
-        n = self.draws.shape[0]
-        match = np.flatnonzero(np.isclose(self.values, value, rtol=1e-9, atol=0))
-        if match.size:
-            return self.draws[:, int(match[0])]
-        if np.isclose(value, reference_value, rtol=1e-9, atol=0):
-            return np.ones(n)
-        import zlib
-
-        rng = np.random.default_rng(zlib.crc32(f"{self.kind}:{value:.12g}".encode()))
-        return np.exp(self.spread * rng.standard_normal(n))
+__all__ = ["Calibration", "Setting", "CalibratedRange"]
 
 
 @dataclass(frozen=True)
@@ -164,7 +134,7 @@ class Calibration:
     source: str = ""
     temperature_ref_c: float = 20.0
     doubling_c: np.ndarray | None = None  # (S,) dark-current doubling temperature; None: no T dependence
-    setting_factors: tuple[SettingFactorDraws, ...] = ()  # effective factors of settings (empty: exact)
+    factors: tuple[FactorTerm, ...] = ()  # factors on the effective stimulus: settings, effects (empty: exact)
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -257,7 +227,7 @@ class Calibration:
             source=source,
             temperature_ref_c=spec.dark.temperature_ref_c,
             doubling_c=flat(draws["doubling_c"]) if "doubling_c" in draws else None,
-            setting_factors=_setting_factors(draws, frame, flat),
+            factors=_factor_terms(spec, draws, frame, flat),
         )
 
     @classmethod
@@ -337,26 +307,33 @@ class Calibration:
                 f"channel '{channel}' was not calibrated; calibrated channels: {list(self.channels)}", column="channel"
             ) from None
 
+    @property
+    def setting_factors(self) -> tuple[SettingFactorDraws, ...]:
+        """The settings' effective factors (one term per kind measured off its reference)."""
+        return tuple(f for f in self.factors if isinstance(f, SettingFactorDraws))
+
     def dark_dn(self, channel: str, setting: Setting) -> np.ndarray:
-        """Dark level (DN) per draw at ``setting``: offset plus dark current times exposure.
+        """Dark level (DN) per draw at ``setting``: offset plus dark current times exposure
+        (:meth:`~bayescal.model.components.dark.Dark.level`).
 
         With a temperature model the dark current scales by ``2^((T - T_ref) / T_d)``.
         """
         c = self.channel_index(channel)
-        t_eff = setting.exposure_s
+        warm = 1.0
         if self.doubling_c is not None and setting.temperature_c is not None:
-            t_eff = setting.exposure_s * np.exp2((setting.temperature_c - self.temperature_ref_c) / self.doubling_c)
+            warm = Dark.doubling(setting.temperature_c - self.temperature_ref_c, self.doubling_c)
         if self.dark_proportional:
-            g_rel = setting.gain / self.dark_gains[0]
-            return (self.dark_offset[:, c, 0] + self.dark_slope[:, 0] * t_eff) * g_rel
-        matches = np.flatnonzero(np.isclose(self.dark_gains, setting.gain))
-        if matches.size == 0:
-            raise SpecError(
-                f"gain {setting.gain:g} has no dark calibration: offsets are per gain setting "
-                f"(dark.gain_dependence = 'per_setting'); calibrated gains: {list(self.dark_gains)}"
-            )
-        gi = int(matches[0])
-        return self.dark_offset[:, c, gi] + self.dark_slope[:, gi] * t_eff
+            column, gain_factor = 0, setting.gain / self.dark_gains[0]
+        else:
+            matches = np.flatnonzero(np.isclose(self.dark_gains, setting.gain))
+            if matches.size == 0:
+                raise SpecError(
+                    f"gain {setting.gain:g} has no dark calibration: offsets are per gain setting "
+                    f"(dark.gain_dependence = 'per_setting'); calibrated gains: {list(self.dark_gains)}"
+                )
+            column, gain_factor = int(matches[0]), 1.0
+        offset, slope = self.dark_offset[:, c, column], self.dark_slope[:, column]
+        return Dark.level(offset, slope, setting.exposure_s, gain_factor, warm)
 
     def signal_dn(self, channel: str, x: np.ndarray, relative: bool = False) -> np.ndarray:
         """Signal (DN) per draw for effective stimulus ``x`` with the draws on its first axis
@@ -364,35 +341,32 @@ class Calibration:
         c = self.channel_index(channel)
         coef = (self.coef_rel if relative else self.coef)[:, c, :]  # (S, P)
         x = np.asarray(x, dtype=float)
-        out = np.zeros(np.broadcast_shapes((coef.shape[0],) + (1,) * (x.ndim - 1), x.shape))
-        for k in range(coef.shape[1] - 1, -1, -1):  # Horner without constant term
-            out = (out + coef[:, k].reshape((-1,) + (1,) * (x.ndim - 1))) * x
-        return out
+        return Response.signal(coef.reshape((coef.shape[0],) + (1,) * (x.ndim - 1) + coef.shape[1:]), x)
 
     def noise_var(self, signal: np.ndarray, setting: Setting, n_avg: float = 1.0, prnu: float = 0.0) -> np.ndarray:
-        """Variance (DN^2) of one reading with ``n_avg`` pixels x frames averaged.
+        """Variance (DN^2) of one reading with ``n_avg`` pixels x frames averaged
+        (:class:`~bayescal.model.components.noise.Noise`).
 
         ``signal`` has the draws on its first axis.
         """
         g_rel = setting.gain / self.reference.gain
-        s = np.maximum(signal, 0.0)
-        pixel = (self.read_noise_dn * g_rel) ** 2 + self.conversion_gain * g_rel * s + 1.0 / 12.0
+        pixel = Noise.pixel_variance(self.read_noise_dn, self.conversion_gain, g_rel, signal)
         excess = self.excess_dn.reshape((-1,) + (1,) * (np.ndim(signal) - 1))
-        return pixel / n_avg + excess**2 + (prnu * s) ** 2
+        return Noise.reading_variance(pixel, n_avg, excess, prnu, np.maximum(signal, 0.0))
 
-    def ratio(self, setting: Setting) -> np.ndarray:
+    def ratio(self, setting: Setting, channel: str | None = None) -> np.ndarray:
         """Stimulus -> effective stimulus per draw: the nominal ``t M g / (t_ref M_ref g_ref)`` times the
-        settings' effective factors (posterior where measured, population draws where not)."""
+        factors on the effective stimulus (the settings' effective factors, posterior where measured and
+        population draws where not; the effects at the setting, e.g. its temperature)."""
         ratio = np.full(self.n_draws, setting.ratio(self.reference))
-        for f in self.setting_factors:
-            ref = getattr(self.reference, _SETTING_ATTR[f.kind])
-            ratio = ratio * f.factor(getattr(setting, _SETTING_ATTR[f.kind]), ref)
+        for term in self.factors:
+            ratio = ratio * term.factor(channel, setting, self.n_draws)
         return ratio
 
     def expected_dn(self, channel: str, stimulus, setting: Setting, relative: bool = False) -> np.ndarray:
         """Expected DN (before clipping) per draw: ``(S,) + shape(stimulus)``."""
         stimulus = np.asarray(stimulus, dtype=float)
-        x = stimulus[None, ...] * self.ratio(setting).reshape((-1,) + (1,) * stimulus.ndim)
+        x = stimulus[None, ...] * self.ratio(setting, channel).reshape((-1,) + (1,) * stimulus.ndim)
         dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * stimulus.ndim)
         return dark + self.signal_dn(channel, x, relative)
 
@@ -410,11 +384,11 @@ class Calibration:
         mean = self.expected_dn(channel, stimulus, setting, relative)
         dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * (mean.ndim - 1))
         sd = np.sqrt(self.noise_var(mean - dark, setting, n_avg, prnu))
-        return np.clip(mean + sd * rng.standard_normal(mean.shape), 0.0, self.full_scale)
+        return Saturation.adc(mean + sd * rng.standard_normal(mean.shape), self.full_scale)
 
     def flags(self, setting: Setting, stimulus=None) -> list[str]:
         """Why a prediction at ``setting`` (and ``stimulus``) is an extrapolation."""
-        out = self.calibrated.flags(setting)
+        out = self.calibrated.flags(setting) + [why for term in self.factors for why in term.flags(setting)]
         if stimulus is not None and np.isfinite(self.calibrated.max_effective):
             x = float(np.max(stimulus)) * setting.ratio(self.reference)
             if x > self.calibrated.max_effective * (1 + 1e-9):
@@ -450,17 +424,10 @@ def _calibrated_range(frame, spec: ModelSpec) -> CalibratedRange:
     )
 
 
-def _setting_factors(draws: dict, frame, flat) -> tuple[SettingFactorDraws, ...]:
-    """The posterior's setting factors, keyed by the nominal values measured with illumination."""
-    lit = frame["stimulus"].to_numpy() > 0
-    out = []
-    for kind, column in _SETTING_ATTR.items():
-        name = f"setting_factor_{kind}"
-        if name not in draws:
-            continue
-        values = tuple(sorted({float(v) for v in frame.loc[lit, column]})) if column in frame else (1.0,)
-        out.append(SettingFactorDraws(kind, values, flat(draws[name]), flat(draws[f"setting_spread_{kind}"])))
-    return tuple(out)
+def _factor_terms(spec: ModelSpec, draws: dict, frame, flat) -> tuple[FactorTerm, ...]:
+    """The factors on the effective stimulus that predictions apply: the settings', then each effect's."""
+    effects = (cls.term(spec.effect(cls.section), draws, frame) for cls in EFFECTS)
+    return SettingFactors.terms(draws, frame, spec.reference, flat) + tuple(t for t in effects if t is not None)
 
 
 def _photon_transfer(frame, spec, offset, dark_gains, proportional) -> tuple[float, float]:
@@ -482,5 +449,5 @@ def _photon_transfer(frame, spec, offset, dark_gains, proportional) -> tuple[flo
         base[i] = level * (g_rel[i] if proportional else 1.0)
     signal = np.where(dark, 0.0, np.maximum(f["dn_mean"].to_numpy() - base, 0.0))
     design = np.column_stack([g_rel**2, g_rel * signal])[unsat]
-    coef = lstsq(design, (f["dn_var"].to_numpy() - 1.0 / 12.0)[unsat]).coef
+    coef = lstsq(design, (f["dn_var"].to_numpy() - QUANTISATION_DN2)[unsat]).coef
     return float(np.sqrt(max(coef[0], 0.0))), float(max(coef[1], 0.0))

@@ -2,7 +2,8 @@
 
 For each posterior draw ``s`` the response is inverted exactly,
 ``x_s = f_s^{-1}(DN - dark_s - e_s)`` with ``e_s ~ N(0, var_s)`` the
-reading's noise (:class:`~bayescal.posterior.calibration.Calibration`), and
+reading's noise (:class:`~bayescal.posterior.calibration.Calibration`; the inverse is the
+response component's, :meth:`~bayescal.model.components.response.Response.inverse`), and
 ``L_s = x_s t_ref M_ref g_ref / (t M g)``.  The draws ``L_s`` are the
 posterior of the stimulus under a flat prior on the reading's signal; they
 carry the parameter uncertainty, the sphere's common systematic (folded into
@@ -41,6 +42,7 @@ import numpy as np
 import pandas as pd
 
 from bayescal.errors import TableError
+from bayescal.model.components import Response
 from bayescal.posterior.calibration import Calibration, Setting
 
 __all__ = ["Inversion", "invert", "radiance_draws", "BOUND_NAMES"]
@@ -113,45 +115,11 @@ def radiance_draws(
     """
     dn = np.asarray(dn, dtype=float)[:, None]
     signal = dn - cal.dark_dn(channel, setting)[None, :]
-    if z is not None:
-        g_rel = setting.gain / cal.reference.gain
-        pos = np.maximum(signal, 0.0)
-        var = pos * (cal.conversion_gain * g_rel / n_avg)
-        var += ((cal.read_noise_dn * g_rel) ** 2 + 1.0 / 12.0) / n_avg + cal.excess_dn[None, :] ** 2
-        if prnu:
-            var += (prnu * pos) ** 2
-        signal -= np.sqrt(var, out=var) * z[None, :]
+    if z is not None:  # the reading's own noise (its variance per draw, at the reading's signal)
+        signal -= np.sqrt(cal.noise_var(signal.T, setting, n_avg, prnu).T) * z[None, :]
     coef = (cal.coef_rel if relative else cal.coef)[:, cal.channel_index(channel), :]  # (S, P)
-    x = _solve(coef, signal)
-    x /= cal.ratio(setting)[None, :]
-    return x
-
-
-def _solve(coef: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Root ``x`` of ``sum_k A_k x^k = y`` near the linear one, per draw (``coef`` (S, P), ``y`` (V, S)).
-
-    Order 1 and 2 in closed form (the stable branch of the quadratic through
-    the origin); higher orders by Newton from the quadratic root.  Beyond a
-    concave response's turning point the turning point is returned.
-    """
-    a1 = coef[None, :, 0]
-    if coef.shape[1] == 1:
-        return y / a1
-    a2 = coef[None, :, 1]
-    disc = a1 * a1 + 4.0 * a2 * y
-    with np.errstate(invalid="ignore", divide="ignore"):
-        turn = np.where(a2 < 0, -a1 / (2.0 * a2), np.inf)
-        x = np.where(disc >= 0, 2.0 * y / (a1 + np.sqrt(np.maximum(disc, 0.0))), turn)
-    if coef.shape[1] == 2:
-        return x
-    powers = np.arange(1, coef.shape[1] + 1)
-    for _ in range(30):
-        f = sum(coef[None, :, k] * x ** powers[k] for k in range(coef.shape[1])) - y
-        df = sum(powers[k] * coef[None, :, k] * x ** (powers[k] - 1) for k in range(coef.shape[1]))
-        step = np.where(df > 0, f / np.where(df > 0, df, 1.0), 0.0)
-        x = x - step
-        if np.all(np.abs(step) <= 1e-13 * np.maximum(np.abs(x), 1e-300)):
-            break
+    x = Response.inverse(coef, signal)
+    x /= cal.ratio(setting, channel)[None, :]
     return x
 
 

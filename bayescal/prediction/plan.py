@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from bayescal.errors import SpecError
+from bayescal.model.components import Saturation
 from bayescal.posterior.calibration import Calibration, Setting
 from bayescal.prediction.invert import radiance_draws
 
@@ -116,10 +117,10 @@ def plan_exposure(
             dark = cal.dark_dn(channel, setting)
         except SpecError:
             continue  # a gain without dark calibration cannot be planned for
-        x = stim * cal.ratio(setting)
-        signal = np.einsum("sk,sk->s", cal.coef[:, cal.channel_index(channel), :], _powers(x, cal.coef.shape[2]))
+        x = stim * cal.ratio(setting, channel)
+        signal = cal.signal_dn(channel, x)
         sd = np.sqrt(cal.noise_var(signal, setting, n_avg))
-        reading = np.clip(dark + signal + sd * rng.standard_normal(signal.shape), 0.0, cal.full_scale)
+        reading = Saturation.adc(dark + signal + sd * rng.standard_normal(signal.shape), cal.full_scale)
         why = cal.flags(setting, float(np.median(stim)))
         if why and not allow_extrapolation:
             continue
@@ -144,7 +145,3 @@ def plan_exposure(
         ["p_in_window", "gain", "exposure_s", "tdi_stages"], ascending=[False, True, True, True], kind="stable"
     )
     return Plan(table.reset_index(drop=True), stim, window, channel)
-
-
-def _powers(x: np.ndarray, order: int) -> np.ndarray:
-    return np.stack([x ** (k + 1) for k in range(order)], axis=-1)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from bayescal.model.components import Saturation
 from bayescal.posterior.calibration import Calibration, Setting
 
 __all__ = ["predict"]
@@ -63,7 +64,7 @@ def predict(
     tail = (1 - level) / 2
     rows = []
     for ch in channels or list(cal.channels):
-        mean = np.clip(cal.expected_dn(ch, stim, setting, relative), 0.0, cal.full_scale)
+        mean = Saturation.adc(cal.expected_dn(ch, stim, setting, relative), cal.full_scale)
         reading = cal.sample_dn(ch, stim, setting, rng, n_avg=n_avg, prnu=prnu, relative=relative)
         ci = np.quantile(mean, [tail, 0.5, 1 - tail], axis=0)
         pi = np.quantile(reading, [tail, 1 - tail], axis=0)

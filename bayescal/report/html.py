@@ -29,6 +29,7 @@ import pandas as pd
 
 from bayescal.errors import PosteriorError
 from bayescal.io.files import write_json_atomic, write_text_atomic
+from bayescal.model.components import Saturation
 from bayescal.posterior.calibration import Calibration, Setting
 from bayescal.prediction.invert import invert, radiance_draws
 from bayescal.prediction.readings import predict
@@ -207,7 +208,7 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
                 continue
             s = Setting(t, g, m)
             grid = np.linspace(0, rows["stimulus"].max() * 1.05, 60)
-            mean = np.clip(cal.expected_dn(ch, grid, s, relative=True), 0, cal.full_scale)
+            mean = Saturation.adc(cal.expected_dn(ch, grid, s, relative=True), cal.full_scale)
             pred = cal.sample_dn(ch, grid, s, rng, n_avg=n_avg, relative=True)
             lo, hi = np.quantile(mean, [0.025, 0.975], axis=0)
             plo, phi = np.quantile(pred, [0.025, 0.975], axis=0)

@@ -33,12 +33,12 @@ from scipy import stats
 
 from bayescal._config import computes
 from bayescal.errors import SpecError, TableError
-from bayescal.fitting.batch import FitBatch, _replace_data, fit_models
-from bayescal.fitting.fit import SAMPLED
+from bayescal.fitting.batch import FitBatch, fit_models, with_data
+from bayescal.fitting.result import SAMPLED
 from bayescal.inference.program import program_for
 from bayescal.io.files import atomic_path, write_text_atomic
 from bayescal.model.assemble import CalibrationModel
-from bayescal.model.data import _check_levels_per_channel
+from bayescal.model.data import check_levels_per_channel
 from bayescal.report.text import markdown_table
 
 __all__ = ["CAMERA_CLASS_PRIORS", "SBCResult", "prior_datasets", "rank_statistics", "run_sbc"]
@@ -214,12 +214,12 @@ def prior_datasets(
             yi = y[i]
             saturated = yi >= threshold
             try:
-                _check_levels_per_channel(frame, dark, saturated, np.asarray(data.u), spec)
+                check_levels_per_channel(frame, dark, saturated, np.asarray(data.u), spec)
             except TableError:
                 rejected += 1
                 continue
             censored = saturated & spec.saturation.censor
-            kept.append(_replace_data(model, y=jax.numpy.asarray(yi), censored=jax.numpy.asarray(censored)))
+            kept.append(with_data(model, y=np.asarray(yi, dtype=float), censored=np.asarray(censored, dtype=bool)))
             for k in latent:
                 truths[k].append(draws[k][i])
             if len(kept) == n:

@@ -1,19 +1,67 @@
-"""Model components: each a small object with a prior, a forward function and
-a ``physical`` method turning its scaled draws into reported quantities.
+"""Model components: one physical effect each (docs/architecture.md, section 3).
 
 Roles in the measurement equation (docs/architecture.md, section 2)::
 
-    DN = offset(gain, t) + S(x * (1 + e_level) * f_gain f_exposure f_tdi) (clipped at full scale) + noise
+    DN = dark(gain, t, T) + S(x (1 + e_level) f_gain f_exposure f_tdi f_effects) (clipped at full scale) + noise
 
-Adding a component does not touch the others; the assembly in
-:mod:`bayescal.assemble` wires them together.
+The six core components fill their places in it; the optional effects in :data:`EFFECTS` are
+further factors on the effective stimulus, each configured from a spec section of its own.
+Adding an effect is its module, its tests and one line here (see :mod:`.base`).
 """
 
-from bayescal.model.components.dark import Dark
-from bayescal.model.components.noise import Noise
-from bayescal.model.components.response import Response
-from bayescal.model.components.saturation import Saturation
-from bayescal.model.components.settings import SettingFactors
-from bayescal.model.components.sphere import Sphere
+from collections.abc import Mapping
 
-__all__ = ["Dark", "Noise", "Response", "Saturation", "SettingFactors", "Sphere"]
+from bayescal.model.components.base import Component, Context, Effect, FactorTerm, StimulusFactor
+from bayescal.model.components.dark import Dark, DarkSpec
+from bayescal.model.components.noise import Noise, NoiseSpec
+from bayescal.model.components.response import Response, ResponseSpec
+from bayescal.model.components.responsivity import ResponsivityTemperature
+from bayescal.model.components.saturation import Saturation, SaturationSpec
+from bayescal.model.components.settings import SettingFactors, SettingsSpec
+from bayescal.model.components.sphere import Sphere, SphereSpec
+
+__all__ = [
+    "CORE",
+    "EFFECTS",
+    "Component",
+    "Context",
+    "Dark",
+    "DarkSpec",
+    "Effect",
+    "FactorTerm",
+    "Noise",
+    "NoiseSpec",
+    "Response",
+    "ResponseSpec",
+    "Saturation",
+    "SaturationSpec",
+    "SettingFactors",
+    "SettingsSpec",
+    "Sphere",
+    "SphereSpec",
+    "StimulusFactor",
+    "effect",
+    "reported_dims",
+    "site_dims",
+]
+
+#: the core components, in the order their quantities are reported
+CORE: tuple[type[Component], ...] = (Response, Dark, Sphere, Noise, Saturation, SettingFactors)
+
+#: the optional effects: factors on the effective stimulus with a spec section of their own
+EFFECTS: tuple[type[Effect], ...] = (ResponsivityTemperature,)
+
+
+def effect(section: str) -> type[Effect]:
+    """The registered effect whose spec section is ``section``."""
+    return {e.section: e for e in EFFECTS}[section]
+
+
+def site_dims() -> Mapping[str, tuple[str, ...]]:
+    """Every component's sampled sites and their dims (beyond chain, draw)."""
+    return {name: dims for c in CORE + EFFECTS for name, dims in c.sites.items()}
+
+
+def reported_dims() -> Mapping[str, tuple[str, ...]]:
+    """Every component's reported quantities and their dims, in report order."""
+    return {name: dims for c in CORE + EFFECTS for name, dims in c.reported.items()}

@@ -1,31 +1,92 @@
 """Offset and dark signal: per gain setting (or proportional to gain), linear in exposure.
 
-Physics: seed 000 section 5.1 (about 50 DN at gain step 1, over 450 DN at
-step 4; nearly flat over 2.7-10 ms; channel colour barely matters), seed 002
-section 4.1 (dark roughly linear in integration time) and eq. 12 (offset
-scales with the video gain).  Channel offsets are partially pooled.
+Physics: seed 000 section 5.1 (about 50 DN at gain step 1, over 450 DN at step 4; nearly flat
+over 2.7-10 ms; channel colour barely matters), seed 002 section 4.1 (dark roughly linear in
+integration time, doubling every ~7 degC) and eq. 12 (offset scales with the video gain)::
+
+    dark = (offset + slope t 2^((T - T_ref) / T_d)) g_factor + drift * time
+
+:meth:`Dark.level` is that equation; the model, predictions and the simulator all call it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
-import jax.numpy as jnp
 import numpy as np
-import numpyro
-import numpyro.distributions as dist
 
+from bayescal.model.components.base import Component
 from bayescal.model.components.priors import scale_prior
-from bayescal.model.spec import DarkSpec
 
-__all__ = ["Dark"]
+__all__ = ["Dark", "DarkSpec"]
 
 OFFSET_TAU_SD = 0.01
 
 
 @dataclass(frozen=True)
-class Dark:
+class DarkSpec:
+    """Offset/dark signal: per gain setting, linear in exposure (seed 000 section 5.1).
+
+    ``gain_dependence = "proportional"`` makes the offset scale with the gain
+    factor instead (seed 002 eq. 12, DN = g (... + 28.72)), which also
+    predicts unmeasured gains.  ``pooled`` partially pools the channel
+    offsets (seed 000: channel colour barely matters for dark); off by
+    default, see :class:`~bayescal.model.components.response.ResponseSpec`.
+
+    ``temperature``: the dark current (the exposure slope) doubles every
+    ``T_d`` degC, ``slope(T) = slope(T_ref) 2^((T - T_ref) / T_d)`` (seed 002:
+    about 7 degC), with ``T_d`` log-normal around ``doubling_c`` (relative sd
+    ``doubling_rel_sd``); the table needs a ``temperature_c`` column.
+
+    ``drift``: the dark level drifts linearly over the measurement run (the
+    sensor warming up): ``offset + d * time``, one drift ``d`` (DN over the
+    whole run, prior Normal(0, ``drift_prior_dn``)) shared by every channel and
+    gain; needs a ``time_s`` column.  Offsets then refer to the start of the
+    run.  Without it a drift is absorbed by the dark slope and the setting
+    factors, and ``A0`` is silently biased (validation benchmark).  The
+    default, ``"auto"``, fits the drift whenever the table has ``time_s``.
+
+    Priors (fractions of full scale): each offset Normal(``offset_prior_mean``,
+    ``offset_prior_sd``), each dark slope (per longest exposure of the table)
+    Normal(0, ``slope_prior_sd``).
+    """
+
+    gain_dependence: Literal["per_setting", "proportional"] = "per_setting"
+    exposure_slope: bool = True
+    pooled: bool = False
+    temperature: bool = False
+    temperature_ref_c: float = 20.0
+    doubling_c: float = 7.0
+    doubling_rel_sd: float = 0.4
+    offset_prior_mean: float = 0.05
+    offset_prior_sd: float = 0.25
+    slope_prior_sd: float = 0.05
+    drift: Literal[True, False, "auto"] = "auto"
+    drift_prior_dn: float = 5.0
+
+
+@dataclass(frozen=True)
+class Dark(Component):
     """Offset ``b0[channel, gain]`` plus ``b1[gain] * t`` (scaled units)."""
+
+    section = "dark"
+    sites = {
+        "b0": ("channel", "gain_setting"),
+        "b1": ("gain_setting",),
+        "b0_mu": ("gain_setting",),
+        "b0_tau": (),
+        "T_d": (),
+        "drift": (),
+    }
+    reported = {
+        "dark_offset": ("channel", "gain_setting"),
+        "dark_offset_ref": ("channel",),
+        "dark_slope": ("gain_setting",),
+        "dark_slope_ref": (),
+        "doubling_c": (),
+        "dark_drift_dn": (),
+    }
 
     spec: DarkSpec
     n_channels: int
@@ -37,71 +98,90 @@ class Dark:
         """Offset proportional to the gain factor (seed 002 eq. 12)."""
         return self.spec.gain_dependence == "proportional"
 
-    def sample(self, data) -> jnp.ndarray:
-        """Sample the offset parameters and return the per-row scaled offset."""
+    # ------------------------------------------------------------------ physics
+    @staticmethod
+    def level(offset, slope, exposure, gain_factor=1.0, temperature_factor=1.0, drift=0.0, time=0.0):
+        """Dark level ``(offset + slope t f_T) g_factor + drift time`` (any units, any array namespace).
+
+        ``gain_factor`` is ``g / g_ref`` for an offset proportional to gain (else 1);
+        ``temperature_factor`` the dark current's :meth:`doubling` factor.
+        """
+        return (offset + slope * (exposure * temperature_factor)) * gain_factor + drift * time
+
+    @staticmethod
+    def doubling(delta_c, doubling_c, xp=np):
+        """The dark current's factor ``2^((T - T_ref) / T_d)`` at ``delta_c = T - T_ref`` degC."""
+        return xp.exp2(delta_c / doubling_c)
+
+    # ----------------------------------------------------------------- sampling
+    def sample(self, data):
+        """Sample the offset parameters and return the per-row scaled dark level."""
+        import jax.numpy as jnp
+        import numpyro
+        import numpyro.distributions as dist
+
         c, g = self.n_channels, 1 if self.proportional else self.n_gains
         if self.spec.pooled and c > 1:
-            mu = numpyro.sample(
-                "b0_mu", dist.Normal(self.spec.offset_prior_mean, self.spec.offset_prior_sd).expand([g]).to_event(1)
-            )
+            prior = dist.Normal(self.spec.offset_prior_mean, self.spec.offset_prior_sd)
+            mu = numpyro.sample("b0_mu", prior.expand([g]).to_event(1))
             tau = numpyro.sample("b0_tau", scale_prior(OFFSET_TAU_SD))
             b0 = numpyro.sample("b0", dist.Normal(mu, tau).expand([c, g]).to_event(2))
         else:
-            b0 = numpyro.sample(
-                "b0", dist.Normal(self.spec.offset_prior_mean, self.spec.offset_prior_sd).expand([c, g]).to_event(2)
-            )
-        if self.proportional:
-            offset = b0[data.channel, 0] * data.g_rel
-        else:
-            offset = b0[data.channel, data.gset]
+            prior = dist.Normal(self.spec.offset_prior_mean, self.spec.offset_prior_sd)
+            b0 = numpyro.sample("b0", prior.expand([c, g]).to_event(2))
+        column = 0 if self.proportional else data.gset
+        gain_factor = data.g_rel if self.proportional else 1.0
+        slope, warm = 0.0, 1.0
         if self.spec.exposure_slope:
             b1 = numpyro.sample("b1", dist.Normal(0.0, self.spec.slope_prior_sd).expand([g]).to_event(1))
-            slope = b1[0] * data.g_rel if self.proportional else b1[data.gset]
+            slope = b1[column]
             if self.spec.temperature:  # dark current doubles every T_d degC (seed 002)
                 t_d = numpyro.sample("T_d", dist.LogNormal(jnp.log(self.spec.doubling_c), self.spec.doubling_rel_sd))
-                slope = slope * jnp.exp2(data.temp / t_d)
-            offset = offset + slope * data.t
+                warm = self.doubling(data.temp, t_d, jnp)
+        drift = 0.0
         if self.spec.drift:  # a linear drift over the run, common to every channel and gain
             drift = numpyro.sample("drift", dist.Normal(0.0, self.spec.drift_prior_dn / self.dn_scale))
-            offset = offset + drift * data.time
-        return offset
+        return self.level(b0[data.channel, column], slope, data.t, gain_factor, warm, drift, data.time)
 
-    def offset_dn(
-        self, draws: dict[str, np.ndarray], channel: int, gain: float, exposure_s: float, layout, ref_gain: float
-    ) -> np.ndarray:
-        """Offset in DN at one channel, gain factor and exposure, per draw."""
+    # ---------------------------------------------------------------- reporting
+    def describe(self) -> str:
+        return (
+            f"dark: {self.spec.gain_dependence}"
+            + (", exposure slope" if self.spec.exposure_slope else "")
+            + (", doubling with temperature" if self.spec.temperature else "")
+            + (", drift over the run" if self.spec.drift else "")
+        )
+
+    def offset_at(self, draws, channel: int, gain: float, exposure_s: float, layout, ref_gain: float) -> np.ndarray:
+        """Dark level in DN at one channel, gain factor and exposure (reference temperature, start of the
+        run), per draw: the papers' ``A0`` at the reference setting."""
         if self.proportional:
-            g_rel = gain / ref_gain
-            off = draws["b0"][..., channel, 0] * g_rel
-            if self.spec.exposure_slope:
-                off = off + draws["b1"][..., 0] * g_rel * exposure_s / layout.t_scale
+            column, gain_factor = 0, gain / ref_gain
         else:
-            gi = layout.gain_values.index(gain)
-            off = draws["b0"][..., channel, gi]
-            if self.spec.exposure_slope:
-                off = off + draws["b1"][..., gi] * exposure_s / layout.t_scale
-        return off * layout.dn_scale
+            column, gain_factor = layout.gain_values.index(gain), 1.0
+        slope = draws["b1"][..., column] if self.spec.exposure_slope else 0.0
+        level = self.level(draws["b0"][..., channel, column], slope, exposure_s / layout.t_scale, gain_factor)
+        return level * layout.dn_scale
 
-    def physical(self, draws: dict[str, np.ndarray], layout) -> dict[str, np.ndarray]:
+    def physical(self, draws, ctx) -> dict[str, np.ndarray]:
         """Dark offset in DN at zero exposure and its exposure slope in DN/s.
 
         Per (channel, gain setting) for per-setting offsets; at the reference
         gain (``*_ref``) for proportional ones.
         """
+        layout = ctx.layout
         b0 = draws["b0"] * layout.dn_scale
         slope = draws["b1"] * layout.dn_scale / layout.t_scale if self.spec.exposure_slope else None
         if self.proportional:
             out = {"dark_offset_ref": b0[..., 0]}
             if slope is not None:
                 out["dark_slope_ref"] = slope[..., 0]
-            return out | self._doubling(draws)
-        out = {"dark_offset": b0}
-        if slope is not None:
-            out["dark_slope"] = slope
-        return out | self._doubling(draws)
-
-    def _doubling(self, draws: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        out = {"doubling_c": draws["T_d"]} if "T_d" in draws else {}
+        else:
+            out = {"dark_offset": b0}
+            if slope is not None:
+                out["dark_slope"] = slope
+        if "T_d" in draws:
+            out["doubling_c"] = draws["T_d"]
         if "drift" in draws:
             out["dark_drift_dn"] = draws["drift"] * self.dn_scale
         return out

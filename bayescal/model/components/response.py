@@ -1,26 +1,27 @@
 """Response: polynomial in the effective stimulus, linear gain times relative nonlinearity.
 
-Physics: DN = g k L t M R (1 + nonlinearity) + dark (seeds 000 eq. 3-5, 002
-eq. 5-6/11).  With ``v = G u`` the linear signal as a fraction of full scale,
-``S = v (1 + sum_k eta_k p_k(v))`` (``p_k(0) = 0``, see :mod:`bayescal.basis`): the nonlinearity is a function of the
-signal level (sense-node V/Q and ADC DN/V nonlinearity, seed 004), so pooling
-it across colour channels is physically motivated.
+Physics: DN = g k L t M R (1 + nonlinearity) + dark (seeds 000 eq. 3-5, 002 eq. 5-6/11).  With
+``v = G u`` the linear signal as a fraction of full scale, ``S = v (1 + sum_k eta_k p_k(v))``
+(``p_k(0) = 0``, see :mod:`bayescal.model.basis`): the nonlinearity is a function of the signal
+level (sense-node V/Q and ADC DN/V nonlinearity, seed 004), so pooling it across colour channels
+is physically motivated.  The signal is a polynomial without constant term, ``S(x) = sum_k A_k
+x^k`` (the offset is the dark component's): :meth:`Response.signal` evaluates it and
+:meth:`Response.inverse` solves it for ``x``, whatever the units of ``A`` and ``x`` (scaled in
+the model, physical in predictions and simulation).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
-import jax.numpy as jnp
 import numpy as np
-import numpyro
-import numpyro.distributions as dist
 
-from bayescal.model.basis import response_monomials, shifted_legendre_monomials
+from bayescal.model.basis import response_monomials
+from bayescal.model.components.base import Component
 from bayescal.model.components.priors import scale_prior
-from bayescal.model.spec import ResponseSpec
 
-__all__ = ["Response"]
+__all__ = ["Response", "ResponseSpec"]
 
 #: prior scale of the pooled nonlinearity's spread across channels
 ETA_TAU_SD = 0.02
@@ -29,8 +30,60 @@ NORMAL_GAIN_SD_FACTOR = 10.0
 
 
 @dataclass(frozen=True)
-class Response:
+class ResponseSpec:
+    """Polynomial response in the effective stimulus x = L t M g (seeds 000 eq. 5, 002 eq. 6/11).
+
+    ``order`` 1 is linear; order p adds a relative nonlinearity of degree p-1
+    in the linear signal (fraction of full scale), ``DN = S (1 + n(S))`` with
+    ``S = G x`` (docs/architecture.md, section 2).  ``pooled`` partially pools the
+    nonlinearity across channels (it is a property of the sense node and ADC,
+    shared by all colours); ``gain_prior = "pooled"`` also pools the
+    per-channel log gains.  Pooling is off by default: NUTS does not yet
+    sample the pooled models (the Laplace whitening taken at the mode
+    degenerates in the pooling scales; a fit reports R-hat ~2 and fails
+    loudly), and the Laplace backend refuses them.  Channels are pooled by
+    the fleet hierarchy instead (:class:`~bayescal.model.spec.FleetSpec`, ``bayescal fleet``),
+    which integrates its scales.
+
+    Priors, in the model's scaled units (docs/architecture.md, section 5): the gain ``G``
+    is the linear signal at the brightest stimulus of the table as a
+    fraction of full scale, log-normal with median ``gain_prior_median``
+    and log-sd ``gain_prior_log_sd`` (``"normal"``: Normal(median,
+    10 median), nearly flat); each nonlinearity coefficient is
+    Normal(0, ``nonlinearity_prior_sd``).  The defaults are weakly
+    informative; a lab that knows its camera class can say so (the SBC runs
+    do, see :mod:`bayescal.validation.sbc`).
+    """
+
+    order: int = 1
+    pooled: bool = False
+    gain_prior: Literal["lognormal", "normal", "pooled"] = "lognormal"
+    gain_prior_median: float = 0.5
+    gain_prior_log_sd: float = 2.0
+    nonlinearity_prior_sd: float = 0.1
+
+
+@dataclass(frozen=True)
+class Response(Component):
     """Per-channel gain and (optionally pooled) nonlinearity of order ``order``."""
+
+    section = "response"
+    sites = {
+        "G": ("channel",),
+        "eta": ("channel", "nl_term"),
+        "logG_mu": (),
+        "logG_tau": (),
+        "logG_z": ("channel",),
+        "eta_mu": ("nl_term",),
+        "eta_tau": ("nl_term",),
+    }
+    reported = {
+        "gain": ("channel",),
+        "gain_rel": ("channel",),
+        "A_abs": ("channel", "power"),
+        "A_rel": ("channel", "power"),
+        "nonlinearity": ("channel", "nl_term"),
+    }
 
     spec: ResponseSpec
     n_channels: int
@@ -40,8 +93,76 @@ class Response:
         """Number of nonlinearity coefficients per channel."""
         return self.spec.order - 1
 
-    def sample(self) -> tuple[jnp.ndarray, jnp.ndarray | None]:
-        """Sample gains ``G`` (C,) and nonlinearity ``eta`` (C, order-1) or None."""
+    # ------------------------------------------------------------------ physics
+    @staticmethod
+    def signal(coef, x, xp=np):
+        """``S(x) = sum_k A_k x^k`` (no constant term) with ``coef[..., k - 1] = A_k``, broadcast against
+        ``x`` (Horner's scheme, which also keeps ``dS/dx`` finite at ``x = 0``)."""
+        out = xp.zeros_like(x * coef[..., 0])
+        for k in range(coef.shape[-1] - 1, -1, -1):
+            out = (out + coef[..., k]) * x
+        return out
+
+    @staticmethod
+    def inverse(coef: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Root ``x`` of ``S(x) = y`` on the rising branch of the response, per draw (``coef`` (S, P),
+        ``y`` (V, S)).
+
+        Order 1 and 2 in closed form (the stable branch of the quadratic through the origin); higher
+        orders by Newton's method safeguarded by bisection on a bracket ``lo < x < hi``: a point
+        below the reading on the rising branch raises ``lo``, one above it or past the first turning
+        point lowers ``hi``, so the root found is the one on the rising branch from the origin, not
+        another root beyond a turning point.  A reading above the response's maximum gets the
+        turning point (where the signal is largest).
+        """
+        a1 = coef[None, :, 0]
+        if coef.shape[1] == 1:
+            return y / a1
+        a2 = coef[None, :, 1]
+        disc = a1 * a1 + 4.0 * a2 * y
+        with np.errstate(invalid="ignore", divide="ignore"):
+            turn = np.where(a2 < 0, -a1 / (2.0 * a2), np.inf)
+            x = np.where(disc >= 0, 2.0 * y / (a1 + np.sqrt(np.maximum(disc, 0.0))), turn)
+        if coef.shape[1] == 2:
+            return x
+        powers = np.arange(1, coef.shape[1] + 1)
+        slope = coef * powers  # coefficients of dS/dx: slope[k] multiplies x^k
+
+        def value_and_slope(v):
+            f, df = np.zeros_like(v), np.zeros_like(v)
+            for k in range(coef.shape[1] - 1, -1, -1):  # Horner for S (no constant) and for dS/dx
+                f = (f + coef[None, :, k]) * v
+                df = df * v + slope[None, :, k]
+            return f - y, df
+
+        x = y / a1  # the linear root: on the rising branch for a gently nonlinear response
+        lo = np.where(y < 0, -np.inf, 0.0)
+        hi = np.full_like(x, np.inf)
+        for _ in range(100):
+            f, df = value_and_slope(x)
+            rising = df > 0
+            lo = np.where(rising & (f < 0), np.maximum(lo, x), lo)
+            hi = np.where(~rising | (f > 0), np.minimum(hi, x), hi)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                newton = x - f / np.where(rising, df, 1.0)
+                # bisect a finite bracket; widen a one-sided one
+                mid = np.where(np.isfinite(lo), 0.5 * (lo + hi), hi - 2.0 * np.abs(hi - x) - 1e-300)
+            inside = rising & (newton > lo) & (newton < hi)
+            fallback = np.where(np.isfinite(hi), mid, 2.0 * np.maximum(x, 1e-300))
+            step = np.where(inside, newton, fallback) - x
+            x = x + step
+            if np.all(np.abs(step) <= 1e-13 * np.maximum(np.abs(x), 1e-300)):
+                break
+        return x
+
+    # ----------------------------------------------------------------- sampling
+    def sample(self):
+        """Sample gains ``G`` (C,) and nonlinearity ``eta`` (C, order-1); returns the monomial
+        coefficients ``A_1..A_p`` of every channel's signal in the scaled stimulus, (C, p)."""
+        import jax.numpy as jnp
+        import numpyro
+        import numpyro.distributions as dist
+
         c = self.n_channels
         if self.spec.gain_prior == "lognormal":
             log_median = float(np.log(self.spec.gain_prior_median))
@@ -54,37 +175,31 @@ class Response:
         else:
             median = self.spec.gain_prior_median
             gain = numpyro.sample("G", dist.Normal(median, NORMAL_GAIN_SD_FACTOR * median).expand([c]).to_event(1))
-        if self.n_terms == 0:
-            return gain, None
-        k = self.n_terms
-        if self.spec.pooled and c > 1:
-            mu = numpyro.sample("eta_mu", dist.Normal(0.0, self.spec.nonlinearity_prior_sd).expand([k]).to_event(1))
-            tau = numpyro.sample("eta_tau", scale_prior(ETA_TAU_SD).expand([k]).to_event(1))
-            eta = numpyro.sample("eta", dist.Normal(mu, tau).expand([c, k]).to_event(2))
-        else:
-            eta = numpyro.sample("eta", dist.Normal(0.0, self.spec.nonlinearity_prior_sd).expand([c, k]).to_event(2))
-        return gain, eta
+        eta = None
+        if self.n_terms:
+            k = self.n_terms
+            if self.spec.pooled and c > 1:
+                mu = numpyro.sample("eta_mu", dist.Normal(0.0, self.spec.nonlinearity_prior_sd).expand([k]).to_event(1))
+                tau = numpyro.sample("eta_tau", scale_prior(ETA_TAU_SD).expand([k]).to_event(1))
+                eta = numpyro.sample("eta", dist.Normal(mu, tau).expand([c, k]).to_event(2))
+            else:
+                prior = dist.Normal(0.0, self.spec.nonlinearity_prior_sd).expand([c, k]).to_event(2)
+                eta = numpyro.sample("eta", prior)
+        return response_monomials(gain, eta, self.spec.order, xp=jnp)[..., 1:]
 
-    def signal(self, gain: jnp.ndarray, eta: jnp.ndarray | None, u: jnp.ndarray, channel: jnp.ndarray) -> jnp.ndarray:
-        """Scaled signal ``S`` for scaled stimulus ``u`` of channel index ``channel``."""
-        v = gain[channel] * u
-        if eta is None:
-            return v
-        q = jnp.asarray(shifted_legendre_monomials(self.spec.order))
-        coef = eta[channel] @ q  # (n, order): nonlinearity n(v) in monomials of v
-        nl = jnp.zeros_like(v)
-        for j in range(self.spec.order - 1, 0, -1):  # Horner; avoids d(v**0)/dv = 0 * inf at v = 0
-            nl = (nl + coef[:, j]) * v
-        return v * (1.0 + nl)
+    # ---------------------------------------------------------------- reporting
+    def describe(self) -> str:
+        return f"response: order {self.spec.order}" + (
+            ", pooled nonlinearity" if self.n_terms and self.spec.pooled else ""
+        )
 
-    def physical(self, draws: dict[str, np.ndarray], x_scale: float, dn_scale: float) -> dict[str, np.ndarray]:
-        """Gain (DN per stimulus unit at the reference setting) and monomials A1..Ap (A0 = 0).
-
-        These are relative to the sphere's scale (what the sphere's readings
-        say); :mod:`bayescal.derived` folds in the common scale.
-        """
+    def physical(self, draws, ctx) -> dict[str, np.ndarray]:
+        """Monomials ``A_rel`` (DN per stimulus unit^k at the reference setting; ``A0`` left 0, the dark
+        component's) relative to the sphere's scale (what its readings say), and the nonlinearity.
+        :mod:`bayescal.model.physical` adds ``A0`` and folds in the sphere's common scale."""
+        layout = ctx.layout
         coef_u = response_monomials(draws["G"], draws.get("eta"), self.spec.order)
-        coef = coef_u * dn_scale / x_scale ** np.arange(self.spec.order + 1)
+        coef = coef_u * layout.dn_scale / layout.x_scale ** np.arange(self.spec.order + 1)
         out = {"A_rel": coef, "gain_rel": coef[..., 1]}
         if "eta" in draws:
             out["nonlinearity"] = draws["eta"]

@@ -1,49 +1,80 @@
 """Integrating-sphere radiance errors: common scale (folded in) and per-level errors.
 
-Physics: seed 002 section 4.3 (sphere uncertainty below 3 %), docs/architecture.md
-section 2.  Every channel and setting at one sphere level sees the same
-level error, so the errors are shared across channels and sampled
-non-centred.  The common scale multiplies every stimulus and is exactly
-degenerate with the gains: it is not sampled but folded in afterwards
-(:func:`fold_common_scale`), exact for a response whose prior is flat on the
-data's scale (docs/architecture.md, section 4).
+Physics: seed 002 section 4.3 (sphere uncertainty below 3 %), docs/architecture.md section 2.
+Every channel and setting at one sphere level sees the same level error, so the errors are
+shared across channels and sampled non-centred: the stimulus a level delivers is its reading
+times ``1 + e_level`` (:meth:`Sphere.factor`).  The common scale multiplies every stimulus and
+is exactly degenerate with the gains: it is not sampled but folded in afterwards
+(:func:`fold_common_scale`), exact for a response whose prior is flat on the data's scale
+(docs/architecture.md, section 4).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import jax.numpy as jnp
 import numpy as np
-import numpyro
-import numpyro.distributions as dist
 
-from bayescal.model.spec import SphereSpec
+from bayescal.model.components.base import StimulusFactor
 
-__all__ = ["Sphere", "fold_common_scale"]
+__all__ = ["Sphere", "SphereSpec", "fold_common_scale"]
 
 
 @dataclass(frozen=True)
-class Sphere:
+class SphereSpec:
+    """Integrating-sphere radiance uncertainty (seed 002 section 4.3: below 3 %).
+
+    ``common_rel``: relative standard uncertainty of the sphere's scale,
+    common to every level; it is exactly degenerate with the gains and is
+    folded in after fitting (docs/architecture.md, section 4).  ``per_level_rel``:
+    relative standard uncertainty of each level's reading, shared by all
+    channels and settings at that level, sampled non-centred (0 turns it off;
+    a ``radiance_u_rel`` column overrides it per level).
+    """
+
+    common_rel: float = 0.03
+    per_level_rel: float = 0.0
+
+
+@dataclass(frozen=True)
+class Sphere(StimulusFactor):
     """Per-level multiplicative stimulus errors ``1 + sigma_l z_l`` (none when disabled)."""
+
+    section = "sphere"
+    sites = {"level_z": ("level",)}
+    reported = {"level_error": ("level",), "sphere_scale": ()}
 
     spec: SphereSpec
     n_levels: int
     per_level: bool
 
-    def sample(self, data) -> jnp.ndarray | float:
+    @staticmethod
+    def factor(level_error):
+        """The stimulus a level delivers, relative to its reading: ``1 + e_level``."""
+        return 1.0 + level_error
+
+    def sample(self, data):
         """Per-row stimulus multiplier (dark rows and disabled component: 1)."""
         if not self.per_level or self.n_levels == 0:
             return 1.0
+        import jax.numpy as jnp
+        import numpyro
+        import numpyro.distributions as dist
+
         z = numpyro.sample("level_z", dist.Normal(0.0, 1.0).expand([self.n_levels]).to_event(1))
         err = jnp.concatenate([data.level_sigma * z, jnp.zeros(1)])
-        return 1.0 + err[data.level]
+        return self.factor(err[data.level])
 
-    def physical(self, draws: dict[str, np.ndarray], level_sigma: np.ndarray) -> dict[str, np.ndarray]:
-        """Relative error of each level's stimulus reading."""
+    def describe(self) -> str:
+        return f"sphere: common {self.spec.common_rel:.1%} folded in" + (
+            f", {self.n_levels} level errors" if self.per_level else ""
+        )
+
+    def physical(self, draws, ctx) -> dict[str, np.ndarray]:
+        """Relative error of each level's stimulus reading (the common scale: :func:`fold_common_scale`)."""
         if "level_z" not in draws:
             return {}
-        return {"level_error": draws["level_z"] * level_sigma}
+        return {"level_error": draws["level_z"] * ctx.level_sigma}
 
 
 def fold_common_scale(

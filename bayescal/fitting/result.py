@@ -1,0 +1,350 @@
+"""A diagnosed fit: the posterior of one dataset, its checks, its summaries and its files.
+
+:func:`finish` turns a backend's unconstrained draws into a :class:`Fit`: the backend's own
+verdict (:mod:`bayescal.inference.registry`), the per-row outlier check, the misfit checks
+(:mod:`bayescal.fitting.misfit`) and the leave-one-setting-out check (:mod:`bayescal.fitting.holdout`),
+the reported quantities in physical units (:mod:`bayescal.model.physical`) and the arviz
+DataTree that ``posterior.nc`` holds.  Every path to a fit (:func:`~bayescal.fitting.fit.fit`,
+:meth:`~bayescal.fitting.batch.FitBatch.fit`) ends here.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from pathlib import Path
+
+import arviz as az
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+from bayescal._version import __version__
+from bayescal.errors import FitFailedError, FitFailedWarning
+from bayescal.fitting.holdout import holdout_checks
+from bayescal.fitting.misfit import MisfitThresholds, misfit_checks
+from bayescal.inference import registry as backends
+from bayescal.inference.diagnostics import Diagnostics
+from bayescal.io.files import staged_directory, write_json_atomic
+from bayescal.io.table import MeasurementTable
+from bayescal.model.assemble import CalibrationModel
+from bayescal.model.components import reported_dims, site_dims
+from bayescal.model.physical import dims, physical_draws
+
+__all__ = ["Fit", "finish", "row_summaries", "misfit_of", "fail", "REPORTED", "SAMPLED", "OUTLIER_Z"]
+
+#: quantities in the summary, in order: every component's reported quantities
+REPORTED = tuple(reported_dims())
+#: the sampled sites stored beside them in ``posterior.nc``
+SAMPLED = tuple(site_dims())
+#: what a fit whose mode has no positive-definite Hessian reports
+NOT_IDENTIFIED = "the posterior mode's Hessian is not positive definite: the model is not identified by these data"
+
+
+@dataclass(frozen=True)
+class Fit:
+    """A fitted calibration model.
+
+    Attributes
+    ----------
+    model : CalibrationModel
+        Spec, table and assembled model.
+    backend : str
+        ``nuts``, ``laplace``, ``emcee`` or ``lsq``.
+    seed : int
+        Seed of every random number in the fit.
+    posterior : xarray.DataTree or None
+        arviz DataTree (``posterior``, ``sample_stats``, ``measurements``);
+        None for ``lsq``.
+    diagnostics : Diagnostics
+        Convergence verdict.
+    lsq : pandas.DataFrame
+        The papers' least-squares fits per channel and setting.
+    timings : dict
+        Wall seconds of the stages.
+    """
+
+    model: CalibrationModel
+    backend: str
+    seed: int
+    posterior: xr.DataTree | None
+    diagnostics: Diagnostics
+    lsq: pd.DataFrame
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        """Whether the diagnostics passed."""
+        return self.diagnostics.ok
+
+    @cached_property
+    def summary(self) -> pd.DataFrame:
+        """Per reported quantity: mean, sd, 2.5/50/97.5 % quantiles, R-hat, bulk/tail ESS."""
+        if self.posterior is None:
+            return pd.DataFrame()
+        post = self.posterior["posterior"].to_dataset()
+        names = [v for v in REPORTED if v in post]
+        with warnings.catch_warnings():  # R-hat of the reference setting's factor (a constant 1) is NaN, by design
+            warnings.simplefilter("ignore", RuntimeWarning)
+            table = az.summary(post[names], ci_prob=0.95, ci_kind="eti", round_to="none")
+        median = _flat_stat(post[names], lambda a: np.median(a, axis=(0, 1)))
+        table.insert(2, "q2.5", table.pop("eti95_lb"))
+        table.insert(3, "q50", median.reindex(table.index))
+        table.insert(4, "q97.5", table.pop("eti95_ub"))
+        return table[["mean", "sd", "q2.5", "q50", "q97.5", "r_hat", "ess_bulk", "ess_tail"]]
+
+    @cached_property
+    def comparison(self) -> pd.DataFrame:
+        """The papers' coefficients at the reference setting: least squares beside the posterior."""
+        ref = self.model.spec.reference
+        order = self.model.spec.response.order
+        rows = []
+        lsq = self.lsq
+        at_ref = (
+            lsq[
+                np.isclose(lsq.get("exposure_s", np.nan), ref.exposure_s)
+                & np.isclose(lsq.get("gain", np.nan), ref.gain)
+                & np.isclose(lsq.get("tdi_stages", np.nan), ref.tdi_stages)
+                & (lsq.get("order", -1) == order)
+            ]
+            if len(lsq)
+            else lsq
+        )
+        post = None if self.posterior is None else self.posterior["posterior"]
+        for ci, channel in enumerate(self.model.layout.channels):
+            lrow = at_ref[at_ref["channel"] == channel] if len(at_ref) else at_ref
+            for k in range(order + 1):
+                row = {"channel": channel, "coefficient": f"A{k}"}
+                if len(lrow):
+                    r = lrow.iloc[0]
+                    row.update(lsq=r[f"A{k}"], lsq_lo=r[f"A{k}_lo"], lsq_hi=r[f"A{k}_hi"], lsq_r2=r["r2"])
+                if post is not None:
+                    for kind in ("rel", "abs"):
+                        a = np.asarray(post[f"A_{kind}"])[..., ci, k].ravel()
+                        row.update(
+                            {
+                                f"bayes_{kind}": float(a.mean()),
+                                f"bayes_{kind}_lo": float(np.quantile(a, 0.025)),
+                                f"bayes_{kind}_hi": float(np.quantile(a, 0.975)),
+                            }
+                        )
+                rows.append(row)
+        return pd.DataFrame(rows)
+
+    def draws(self, name: str) -> np.ndarray:
+        """Draws of one posterior variable, flattened over chains: shape ``(n_draws, ...)``."""
+        arr = np.asarray(self.posterior["posterior"][name])
+        return arr.reshape((-1,) + arr.shape[2:])
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary: status, diagnostics, model, parameters and the LSQ baseline."""
+        spec, layout = self.model.spec, self.model.layout
+        return {
+            "status": "ok" if self.ok else "FAILED",
+            "backend": self.backend,
+            "seed": self.seed,
+            "bayescal_version": __version__,
+            "model": {
+                "name": spec.name,
+                "components": self.model.parts.describe(),
+                "reference": spec.to_dict()["reference"],
+            },
+            "stimulus_unit": layout.unit,
+            "diagnostics": self.diagnostics.to_dict(),
+            "timings_s": self.timings,
+            "parameters": _records(self.summary.reset_index(names="parameter")) if len(self.summary) else [],
+            "comparison_at_reference": _records(self.comparison),
+            "lsq": _records(self.lsq),
+        }
+
+    def save(self, out_dir: str | os.PathLike, *, measurements: bool = False) -> Path:
+        """Write ``posterior.nc``, ``summary.csv``, ``summary.json`` and ``lsq.csv`` (and, with
+        ``measurements``, the table as ``measurements.csv``) as one new directory that replaces
+        ``out_dir`` whole (see :func:`bayescal.io.files.staged_directory`)."""
+        out_dir = Path(out_dir)
+        with staged_directory(out_dir, kind="fit") as stage:
+            if measurements:
+                self.model.table.write_csv(stage("measurements.csv"))
+            if self.posterior is not None:
+                self.posterior.to_netcdf(stage("posterior.nc"), engine="h5netcdf")
+                self.summary.to_csv(stage("summary.csv"), index_label="parameter", float_format="%.8g")
+            else:
+                self.lsq.to_csv(stage("summary.csv"), index=False, float_format="%.8g")
+            self.lsq.to_csv(stage("lsq.csv"), index=False, float_format="%.8g")
+            write_json_atomic(stage("summary.json"), self.to_dict())
+        return out_dir
+
+
+def finish(model, program, draws, backend: str, seed: int, result, lsq, timings: dict, strict: bool = False) -> Fit:
+    """From a backend's unconstrained draws ``(chain, draw, dim)`` of one dataset to a diagnosed :class:`Fit`:
+    the backend's verdict, the outlier, misfit and leave-one-setting-out checks, the posterior in
+    physical units and the arviz DataTree."""
+    spec, table = model.spec, model.table
+    z, stats = draws.z, draws.stats
+    post, rows = _posterior(model, program, z, seed)
+    diag = backends.get(backend).verdict(draws, post, spec, result)
+    if not result.positive_definite:
+        diag = diag.with_check("identified", [NOT_IDENTIFIED], {"hessian_positive_definite": False})
+    diag = _check_outliers(model, rows, diag)
+    diag = _check_misfit(model, rows, post, diag)
+    if spec.inference.holdout_check and result.positive_definite:
+        diag = _check_holdout(model, program, result.mode, seed, diag)
+    if not diag.ok:
+        fail(strict, f"fit failed its diagnostics: {diag.verdict}")
+    with warnings.catch_warnings():  # emcee has more walkers than thinned draws, by design
+        warnings.filterwarnings("ignore", "Found chain dimension", UserWarning)
+        chains, draws, dim = np.shape(z)
+        loglik = np.asarray(program.loglik(np.asarray(z).reshape(-1, dim), model.data)).reshape(chains, draws, -1)
+        dt = az.from_dict(
+            {
+                "posterior": post,
+                "log_likelihood": {"obs": loglik},
+                **({"sample_stats": stats} if stats else {}),
+            },
+            dims={**{k: v for k, v in dims().items() if k in post}, "obs": ["row"]},
+            coords=_coords(model),
+        )
+    dt.attrs.update(spec_toml=spec.to_toml(), backend=backend, seed=seed, bayescal_version=__version__)
+    dt["measurements"] = xr.DataTree(_table_dataset(table))
+    return Fit(model, backend, seed, dt, diag, lsq, timings)
+
+
+def row_summaries(sites: dict) -> dict[str, np.ndarray]:
+    """Each row's posterior predictive mean and variance and its mean signal (scaled units), from the
+    constrained sites of a batch of draws: what the outlier and misfit checks read."""
+    mean = np.asarray(sites["row_mean"])
+    return {
+        "mean": mean.mean(axis=0),
+        "var": np.mean(np.asarray(sites["row_sd"]) ** 2, axis=0) + np.var(mean, axis=0),
+        "signal": np.asarray(sites["row_signal"]).mean(axis=0),
+    }
+
+
+def _posterior(model: CalibrationModel, program, z: np.ndarray, seed: int) -> tuple[dict, dict]:
+    """Reported draws, and each row's posterior predictive mean and variance (scaled units)."""
+    chains, draws, dim = z.shape
+    sites = program.constrain(np.asarray(z).reshape(-1, dim), model.data)
+    rows = row_summaries(sites)
+    sites = {k: np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]) for k, v in sites.items()}
+    post = {k: v for k, v in sites.items() if k in SAMPLED}
+    post.update(physical_draws(model, sites, seed))
+    return post, rows
+
+
+#: a row whose reading lies this many predictive sds from the posterior mean is reported (p ~ 6e-7 each)
+OUTLIER_Z = 5.0
+
+
+def _check_outliers(model: CalibrationModel, rows: dict, diag: Diagnostics) -> Diagnostics:
+    """Posterior predictive check per row: name rows the model cannot explain, loudly."""
+    data = model.data
+    z = (np.asarray(data.y) - rows["mean"]) / np.sqrt(rows["var"])
+    z = np.where(np.asarray(data.censored), 0.0, z)
+    worst = np.argsort(-np.abs(z))
+    bad = [int(i) for i in worst if abs(z[i]) > OUTLIER_Z]
+    extra = dict(diag.extra, max_abs_residual_z=float(np.max(np.abs(z))) if z.size else 0.0)
+    if not bad:
+        return replace(diag, extra=extra)
+    frame = model.table.frame
+    scale = model.layout.dn_scale
+    described = []
+    for i in bad[:5]:
+        r = frame.iloc[i]
+        described.append(
+            f"row {i + 1} (channel {r['channel']}, {model.table.stimulus} {r['stimulus']:g}, exposure "
+            f"{r['exposure_s']:g} s, gain {r['gain']:g}): dn_mean {r['dn_mean']:g} is "
+            f"{(float(data.y[i]) - rows['mean'][i]) * scale:+.3g} DN ({z[i]:+.1f} sd) from the model"
+        )
+    more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
+    problem = f"{len(bad)} outlying row(s), e.g. " + "; ".join(described) + more + ": check those frames"
+    return replace(diag, ok=False, problems=diag.problems + (problem,), extra=extra)
+
+
+def misfit_of(model: CalibrationModel, rows: dict, excess_dn: np.ndarray | None) -> tuple[list[str], dict]:
+    """The misfit checks (:mod:`bayescal.misfit`) of one fit: ``rows`` from :func:`row_summaries`,
+    ``excess_dn`` the draws of the excess scatter in DN (None when not modelled)."""
+    data, scale, settings = model.data, model.layout.dn_scale, model.spec.inference
+    floor_var = np.asarray(model.parts.noise.nominal_pixel_variance(data, rows["signal"])) / np.asarray(data.n_avg)
+    thresholds = MisfitThresholds(settings.misfit_excess_ratio, settings.misfit_group_z, settings.misfit_runs_z)
+    problems, info = misfit_checks(
+        model.table.frame,
+        np.asarray(data.y) * scale,
+        rows["mean"] * scale,
+        np.sqrt(rows["var"]) * scale,
+        rows["signal"] * scale,
+        np.sqrt(floor_var) * scale,
+        None if excess_dn is None else np.asarray(excess_dn).ravel(),
+        np.asarray(data.censored),
+        thresholds,
+    )
+    info["thresholds"] = {"excess_ratio": thresholds.excess_ratio, "group_z": thresholds.group_z}
+    return problems, info
+
+
+def _check_misfit(model: CalibrationModel, rows: dict, post: dict, diag: Diagnostics) -> Diagnostics:
+    """Does the model describe its data to within their noise? Fails the fit, naming where, if not."""
+    return diag.with_check("misfit", *misfit_of(model, rows, post.get("excess_dn")))
+
+
+def _check_holdout(model: CalibrationModel, program, mode, seed: int, diag: Diagnostics) -> Diagnostics:
+    """Leave each setting's rows out in turn: do the other rows predict them? (:mod:`bayescal.holdout`)"""
+    return diag.with_check("holdout", *holdout_checks(model, program, mode, model.spec.inference.misfit_group_z, seed))
+
+
+def fail(strict: bool, message: str) -> None:
+    """A failed fit: raise :class:`~bayescal.errors.FitFailedError` (``strict``) or warn."""
+    if strict:
+        raise FitFailedError(message)
+    warnings.warn(message, FitFailedWarning, stacklevel=3)
+
+
+def _coords(model: CalibrationModel) -> dict:
+    layout, spec = model.layout, model.spec
+    coords = {
+        "channel": list(layout.channels),
+        "power": list(range(spec.response.order + 1)),
+        "nl_term": list(range(1, spec.response.order)),
+        "level": list(layout.levels),
+        "exposure_setting": list(layout.exposure_values),
+        "lit_gain_setting": list(layout.lit_gain_values),
+        "tdi_setting": list(layout.tdi_values),
+    }
+    refs = dict(model.parts.settings.ref_index)
+    for kind in ("gain", "exposure", "tdi"):
+        values = list(layout.setting_values(kind))
+        coords[f"{kind}_free"] = [v for i, v in enumerate(values) if i != refs[kind]]
+    if not model.parts.dark.proportional:
+        coords["gain_setting"] = list(layout.gain_values)
+    else:
+        coords["gain_setting"] = [spec.reference.gain]
+    return coords
+
+
+def _table_dataset(table: MeasurementTable) -> xr.Dataset:
+    df = table.to_frame().reset_index(drop=True)
+    ds = xr.Dataset(
+        {c: ("row", df[c].to_numpy().astype(str) if df[c].dtype == object else df[c].to_numpy()) for c in df}
+    )
+    ds.attrs.update(stimulus=table.stimulus, unit=table.unit, source=table.source)
+    return ds
+
+
+def _flat_stat(ds: xr.Dataset, fn) -> pd.Series:
+    out = {}
+    for name, da in ds.data_vars.items():
+        values = fn(np.asarray(da))
+        dims = da.dims[2:]
+        if not dims:
+            out[name] = float(values)
+            continue
+        coords = [da[d].values for d in dims]
+        for idx in np.ndindex(values.shape):
+            label = ", ".join(str(coords[i][j]) for i, j in enumerate(idx))
+            out[f"{name}[{label}]"] = float(values[idx])
+    return pd.Series(out)
+
+
+def _records(df: pd.DataFrame) -> list[dict]:
+    return [{k: (v.item() if hasattr(v, "item") else v) for k, v in row.items()} for row in df.to_dict("records")]

@@ -1,0 +1,112 @@
+"""What a component is (docs/architecture.md, section 3).
+
+A component is one physical effect of the measurement equation.  It owns
+
+- its section of the model spec (a frozen dataclass in its own module),
+- its numpyro sampling (``sample``: the sites it draws, in the model's scaled units),
+- its forward function, written against an array namespace ``xp`` (``jax.numpy`` while
+  sampling, ``numpy`` for predictions and simulation), so the physics is written once,
+- its conversion of scaled draws to reported quantities in physical units (``physical``),
+- the names and dims of its sampled sites and reported quantities (``sites``, ``reported``).
+
+The six core components fill fixed places in the equation (response, dark, noise, sphere,
+saturation, settings).  An :class:`Effect` is an optional factor on the effective stimulus,
+configured from a spec section of its own; it is added to the model by one line in
+:data:`bayescal.model.components.EFFECTS`, and the spec, the data, the assembly, the reported
+quantities, predictions (:class:`~bayescal.posterior.calibration.Calibration`) and the simulator
+all reach it through this protocol.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+__all__ = ["Component", "StimulusFactor", "Effect", "FactorTerm", "Context"]
+
+
+@dataclass(frozen=True)
+class Context:
+    """What the conversion of scaled draws to physical units needs beside the draws."""
+
+    layout: Any  # bayescal.model.data.Layout
+    level_sigma: np.ndarray
+    seed: int
+
+    def rng(self, salt: int) -> np.random.Generator:
+        """A generator for the draws a conversion makes (reproducible from the fit's seed)."""
+        return np.random.default_rng(np.random.SeedSequence([self.seed, salt]))
+
+
+class Component(ABC):
+    """One physical effect; concrete components are frozen dataclasses (hashable: part of the key of a
+    compiled model structure)."""
+
+    #: the component's section of the model spec
+    section: ClassVar[str]
+    #: sampled sites -> their dims beyond (chain, draw)
+    sites: ClassVar[Mapping[str, tuple[str, ...]]] = {}
+    #: reported quantities (physical units) -> their dims beyond (chain, draw), in report order
+    reported: ClassVar[Mapping[str, tuple[str, ...]]] = {}
+
+    @abstractmethod
+    def describe(self) -> str:
+        """One line saying what this component contributes to the model."""
+
+    def physical(self, draws: Mapping[str, np.ndarray], ctx: Context) -> dict[str, np.ndarray]:
+        """Reported quantities from the scaled draws (leading dims chain, draw)."""
+        return {}
+
+
+class StimulusFactor(Component):
+    """A multiplicative factor on the effective stimulus: the equation's ``S(x f_1 f_2 ...)``."""
+
+    @abstractmethod
+    def sample(self, data) -> Any:
+        """The factor of every row (a JAX array, or 1.0 when the component adds nothing)."""
+
+
+class FactorTerm(Protocol):
+    """An effect's posterior as predictions use it: its factor per draw at a camera setting."""
+
+    def factor(self, setting, n_draws: int) -> np.ndarray:
+        """Factor on the effective stimulus per draw, shape ``(n_draws,)``."""
+        ...
+
+    def flags(self, setting) -> list[str]:
+        """Why a prediction at ``setting`` extrapolates this effect (empty: it does not)."""
+        ...
+
+
+class Effect(StimulusFactor):
+    """An optional stimulus factor with a spec section of its own (registered in ``EFFECTS``)."""
+
+    #: the dataclass of its spec section (defaults must describe the effect switched off or automatic)
+    spec_class: ClassVar[type]
+
+    @classmethod
+    @abstractmethod
+    def build(cls, section: Any, spec: Any, frame: pd.DataFrame) -> Effect | None:
+        """The configured component for a table, or None when the model leaves it out."""
+
+    def inputs(self, frame: pd.DataFrame) -> dict[str, np.ndarray]:
+        """Per-row inputs the component reads from the table (into ``ModelData.extra``)."""
+        return {}
+
+    @classmethod
+    def term(cls, section: Any, draws: Mapping[str, np.ndarray], frame: pd.DataFrame) -> FactorTerm | None:
+        """The effect in a calibration's predictions, from its reported draws (None: not in them)."""
+        return None
+
+    @classmethod
+    def true_factor(cls, params: Mapping[str, float], rows: pd.DataFrame) -> np.ndarray:
+        """The simulator's factor for every row of a simulated table (``params``: the design's
+        ``[truth.effects.<section>]`` table)."""
+        return np.ones(len(rows))
