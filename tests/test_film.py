@@ -5,14 +5,17 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bayescal.film.model import fit_film, load_film_spec, simulate_film, table1_check, uncertainty_budget_film
+import bayescal as bc
+from bayescal.film import FilmCalibration, FilmSpec, fit_film, simulate_film, table1_check, uncertainty_budget_film
 
 from .conftest import MODELS
 
 
 @pytest.fixture(scope="module")
 def spec():
-    return load_film_spec(MODELS / "seed003_film.toml")
+    spec = bc.load_spec(MODELS / "seed003_film.toml")  # the kind in the file decides the spec's type
+    assert isinstance(spec, FilmSpec)
+    return spec
 
 
 def test_table1_ir_follows_eq3_visible_do_not():
@@ -39,13 +42,14 @@ def _film_coverage(spec, n: int) -> dict[str, int]:
         current = {"B": 12.0, "G": 15.0, "R": 10.0, "IR": 150.0}[band]
         dens, truth = simulate_film(fast, band, gamma=gamma, d0=d0, current=current, density_sd=0.02, seed=seed)
         fit = fit_film(fast, band, current, dens, seed=seed)
-        assert fit.diagnostics["ok"], fit.diagnostics
+        assert fit.diagnostics.ok, fit.diagnostics.verdict
         for k, v in (("gamma", gamma), ("D0", d0)):
-            lo, hi = np.quantile(fit.draws[k], [0.025, 0.975])
+            lo, hi = np.quantile(fit.flat(k), [0.025, 0.975])
             hits[k] += bool(lo <= v <= hi)
         target = truth["L_steps"][rng.integers(2, 8)] * rng.uniform(0.8, 1.25)  # a ground target in the wedge range
         d_target = d0 + gamma * np.log10(target) + 0.02 * rng.standard_normal()
-        inv = fit.invert([d_target]).iloc[0]
+        cal = FilmCalibration({band: {k: fit.flat(k) for k in ("gamma", "D0", "density_sd", "L_steps")}}, fast)
+        inv = cal.invert([d_target], band).to_frame().iloc[0]
         hits["radiance"] += bool(inv.lower <= target <= inv.upper)
     print(f"\nfilm 95 % coverage over {n} simulated bands:", {k: v / n for k, v in hits.items()})
     return hits
@@ -79,24 +83,35 @@ def test_bad_film_input(spec):
 
 
 def test_film_cli(tmp_path, capsys):
+    """The film is a model kind: the same fit, invert and report verbs as a camera, no film options."""
     from bayescal.cli import main
 
     example = MODELS / "seed003_film_example.csv"  # simulated: gamma 1.2, D0 1.4 in every band
-    assert main(["fit", str(example), "--model", str(MODELS / "seed003_film.toml"), "--out", str(tmp_path / "f")]) == 0
+    out = tmp_path / "f"
+    assert main(["fit", str(example), "--model", str(MODELS / "seed003_film.toml"), "--out", str(out)]) == 0
     import json
 
-    summary = json.loads((tmp_path / "f" / "film_summary.json").read_text())
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["model_kind"] == "film" and summary["status"] == "ok"
+    gamma = {p["parameter"]: p for p in summary["parameters"] if p["parameter"].startswith("gamma")}
     for band in ("B", "G", "R", "IR"):
-        g = summary["bands"][band]["gamma"]
+        g = gamma[f"gamma[{band}]"]
         assert g["q2.5"] <= 1.2 <= g["q97.5"]
     capsys.readouterr()
-    assert main(["invert", str(tmp_path / "f"), "--dn", "0.9,1.2", "--channel", "IR"]) == 0
-    assert "band IR radiance" in capsys.readouterr().out
-    assert main(["invert", str(tmp_path / "f"), "--dn", "1.0", "--channel", "UV"]) == 2
+    assert main(["invert", str(out), "--dn", "0.9,1.2", "--channel", "IR"]) == 0
+    assert "IR radiance (mW sr^-1 cm^-2)" in capsys.readouterr().out
+    assert main(["invert", str(out), "--dn", "1.0", "--channel", "UV"]) == 2
+    assert main(["report", str(out)]) == 0
+    page = (out / "report.html").read_text()
+    assert "Characteristic curves" in page and "data:image/png;base64" in page
+    cal = bc.Calibration.load(out)  # dispatches on the posterior's kind
+    assert isinstance(cal, FilmCalibration) and cal.channels == ("B", "G", "R", "IR")
+    res = bc.invert(cal, [1.4], "G")
+    assert res.lower[0] < res.median[0] < res.upper[0]
 
 
 def test_exposure_conversion_eq11():
-    from bayescal.film.model import convert_exposure
+    from bayescal.film import convert_exposure
 
     # half the exposure time needs twice the radiance for the same density; one stop wider (x sqrt 2) half
     assert convert_exposure(1.0, 0.01, 0.005, 0.25, 0.25) == pytest.approx(2.0)

@@ -315,9 +315,12 @@ def _image_args(p, channel_help: str) -> None:
 
 
 def _setting(args, cal):
+    """The camera setting the arguments give (None for a posterior without camera settings: a film)."""
     from bayescal.posterior.calibration import Setting
 
     ref = cal.reference
+    if ref is None:
+        return None
     return Setting(
         args.exposure_s if args.exposure_s is not None else ref.exposure_s,
         args.gain if args.gain is not None else ref.gain,
@@ -360,18 +363,6 @@ def _cmd_invert(args) -> int:
     from bayescal.prediction.images import invert_image, read_image, write_radiance_maps
     from bayescal.prediction.invert import invert
 
-    if (Path(args.posterior) / "film_draws.npz").exists():
-        from bayescal.film.model import load_film_fits
-
-        fits = load_film_fits(args.posterior)
-        if args.channel not in fits or args.dn is None:
-            raise SpecError(f"a film fit inverts --dn densities of one --channel band ({', '.join(fits)})")
-        table = fits[args.channel].invert(np.asarray(args.dn), seed=args.seed)
-        print(f"band {args.channel} radiance (mW sr^-1 cm^-2) from film density; 95 % intervals:")
-        print(table.to_string(index=False, float_format="%.5g"))
-        if args.out:
-            write_text_atomic(args.out, table.to_csv(index=False, float_format="%.8g"))
-        return 0
     cal = Calibration.load(args.posterior)
     setting = _setting(args, cal)
     if args.maps is not None:
@@ -383,10 +374,7 @@ def _cmd_invert(args) -> int:
             raise SpecError("--dn needs --channel")
         res = invert(cal, np.asarray(args.dn), args.channel, setting, n_avg=args.n_avg, seed=args.seed)
         table = res.to_frame()
-        print(
-            f"{cal.stimulus} ({cal.unit}) at exposure {setting.exposure_s:g} s, gain {setting.gain:g}, "
-            f"TDI {setting.tdi_stages:g}; 95 % intervals (one-sided where bound says so):"
-        )
+        print(res.describe(cal.stimulus) + ":")
         print(table.to_string(index=False, float_format="%.6g"))
         if args.out:
             write_text_atomic(args.out, table.to_csv(index=False, float_format="%.10g"))
@@ -694,45 +682,14 @@ def _cmd_report(args) -> int:
     return 0
 
 
-def _is_film(path) -> bool:
-    import tomllib
-
-    try:
-        return tomllib.loads(Path(path).read_text()).get("kind") == "film"
-    except (OSError, UnicodeError, tomllib.TOMLDecodeError):  # load_spec says what is wrong
-        return False
-
-
-def _cmd_fit_film(args) -> int:
-    import numpy as np
-
-    from bayescal.film.model import fit_film, load_film_spec, load_film_table, save_film_fits
-
-    spec = load_film_spec(args.model)
-    data = load_film_table(args.data)
-    fits = {band: fit_film(spec, band, current, dens, seed=args.seed) for band, (current, dens) in data.items()}
-    save_film_fits(fits, args.out)
-    for band, f in fits.items():
-        g, d0 = f.draws["gamma"], f.draws["D0"]
-        status = "ok" if f.diagnostics["ok"] else f"FAILED {f.diagnostics}"
-        print(
-            f"{band}: gamma {np.median(g):.4g} [{np.quantile(g, 0.025):.4g}, {np.quantile(g, 0.975):.4g}], "
-            f"D0 {np.median(d0):.4g} [{np.quantile(d0, 0.025):.4g}, {np.quantile(d0, 0.975):.4g}] ({status})"
-        )
-    print(f"wrote {args.out}/: film_draws.npz, film_summary.json")
-    return 0 if all(f.diagnostics["ok"] for f in fits.values()) else 3
-
-
 def _cmd_fit(args) -> int:
-    from bayescal import load_spec, load_table
+    from bayescal import load_spec
     from bayescal.io.files import check_output_dir
-
-    if _is_film(args.model):
-        return _cmd_fit_film(args)
+    from bayescal.model import kinds
 
     check_output_dir(args.out)
-    table = load_table(args.data)
     spec = load_spec(args.model)
+    table = kinds.load_table(spec, args.data)  # the table of the spec's kind (a camera's, a film's)
     return _run_fit(table, spec, args.backend, args.seed, Path(args.out), args.quiet, report=args.report)
 
 
@@ -743,19 +700,19 @@ def _run_fit(
 
     from bayescal import FitFailedWarning, fit
     from bayescal.cli.progress import progress_bar, stage_reporter
-    from bayescal.report.text import render_summary
 
     inf = spec.inference
     if backend == "emcee":
         total, desc = inf.emcee_burn + inf.emcee_steps, "emcee (ensemble steps)"
     else:
-        total, desc = inf.warmup + inf.draws, f"nuts ({inf.chains} chains)"
-    with progress_bar(total, desc, quiet or backend not in ("nuts", "emcee")) as tick:  # draws on a terminal only
+        total, desc = inf.warmup + inf.draws, f"{backend} ({inf.chains} chains)"
+    sampling = backend in ("nuts", "blackjax", "emcee")
+    with progress_bar(total, desc, quiet or not sampling) as tick:  # draws on a terminal only
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FitFailedWarning)  # reported below, loudly
             result = fit(table, spec, backend, seed=seed, progress=tick, stage=stage_reporter(quiet))
     result.save(out, measurements=measurements)
-    print(render_summary(result))
+    print(result.summary_text())
     if report and result.posterior is not None:
         from bayescal.report.html import write_report
 

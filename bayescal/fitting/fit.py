@@ -24,6 +24,7 @@ from bayescal.inference.diagnostics import Diagnostics
 from bayescal.inference.lsq import lsq_baseline
 from bayescal.inference.registry import BASELINE
 from bayescal.io.table import MeasurementTable
+from bayescal.model import kinds
 from bayescal.model.assemble import CalibrationModel, build_model
 from bayescal.model.spec import ModelSpec
 
@@ -60,6 +61,10 @@ def fit(
     stage : callable, optional
         ``stage(message)`` is called as each stage starts (model, mode, sampling, checks).
     """
+    if kinds.kind_of(spec) != kinds.CALIBRATION:  # another model kind fits itself (bayescal.model.kinds)
+        return kinds.get(kinds.kind_of(spec)).fit(
+            table, spec, backend, seed=seed, progress=progress, strict=strict, stage=stage
+        )
     if backend not in BACKENDS:
         raise SpecError(f"unknown backend '{backend}'; expected one of {', '.join(BACKENDS)}")
     if backend != BASELINE:

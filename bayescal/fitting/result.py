@@ -142,6 +142,7 @@ class Fit:
         """JSON-ready summary: status, diagnostics, model, parameters and the LSQ baseline."""
         spec, layout = self.model.spec, self.model.layout
         return {
+            "model_kind": "calibration",
             "status": "ok" if self.ok else "FAILED",
             "backend": self.backend,
             "seed": self.seed,
@@ -158,6 +159,47 @@ class Fit:
             "comparison_at_reference": _records(self.comparison),
             "lsq": _records(self.lsq),
         }
+
+    def summary_text(self) -> str:
+        """Readable summary: model, verdict, coefficients with 95 % intervals beside least squares."""
+        spec, layout = self.model.spec, self.model.layout
+        ref = spec.reference
+        lines = [
+            f"Model {spec.name} ({self.backend}, seed {self.seed}): " + "; ".join(self.model.parts.describe()),
+            f"Diagnostics: {self.diagnostics.verdict}"
+            + (
+                f" (max R-hat {self.diagnostics.max_rhat:.4f}, min bulk ESS {self.diagnostics.min_ess_bulk:.0f}, "
+                f"{self.diagnostics.divergences} divergences)"
+                if np.isfinite(self.diagnostics.max_rhat)
+                else ""
+            ),
+            *([f"Note: {self.diagnostics.extra['retried']}"] if "retried" in self.diagnostics.extra else []),
+            "",
+            f"DN = A0 + A1 L + ... at exposure {ref.exposure_s:g} s, gain {ref.gain:g}, TDI {ref.tdi_stages:g}; "
+            f"L in {layout.unit}",
+        ]
+        cmp = self.comparison
+        if len(cmp) == 0:
+            return "\n".join(lines)
+        titles = ("least squares [95% CI]", "Bayes vs sphere [95%]", "Bayes absolute [95%]")
+        header = f"{'ch':>4} {'coef':>4} " + " ".join(f"{t:>34}" for t in titles)
+        lines += [header, "-" * len(header)]
+        for _, r in cmp.iterrows():
+            cells = [f"{r['channel']:>4}", f"{r['coefficient']:>4}"]
+            for key in ("lsq", "bayes_rel", "bayes_abs"):
+                if key in r and np.isfinite(r.get(key, np.nan)):
+                    cells.append(f"{f5(r[key]):>12} [{f5(r[key + '_lo'])}, {f5(r[key + '_hi'])}]".rjust(34))
+                else:
+                    cells.append(f"{'-':>34}")
+            lines.append(" ".join(cells))
+        lines.append(
+            "'vs sphere': relative to the sphere's radiance scale (what least squares sees); "
+            f"'absolute': with its {spec.sphere.common_rel:.1%} scale uncertainty folded in."
+        )
+        if "lsq_r2" in cmp:
+            r2 = cmp.groupby("channel", sort=False)["lsq_r2"].first()
+            lines.append("Least-squares R^2: " + ", ".join(f"{c} {v:.5f}" for c, v in r2.items()))
+        return "\n".join(lines)
 
     def save(self, out_dir: str | os.PathLike, *, measurements: bool = False) -> Path:
         """Write ``posterior.nc``, ``summary.csv``, ``summary.json`` and ``lsq.csv`` (and, with
@@ -348,3 +390,8 @@ def _flat_stat(ds: xr.Dataset, fn) -> pd.Series:
 
 def _records(df: pd.DataFrame) -> list[dict]:
     return [{k: (v.item() if hasattr(v, "item") else v) for k, v in row.items()} for row in df.to_dict("records")]
+
+
+def f5(x: float) -> str:
+    """A number to 5 significant digits."""
+    return f"{x:.5g}"

@@ -17,6 +17,7 @@ from typing import Any, Literal
 
 from bayescal.errors import SpecError
 from bayescal.io.toml import build, dumps, read_toml
+from bayescal.model import kinds
 from bayescal.model.components import EFFECTS
 from bayescal.model.components.dark import DarkSpec
 from bayescal.model.components.noise import NoiseSpec
@@ -266,9 +267,12 @@ class ModelSpec:
 
 
 def load_spec(path: str | os.PathLike) -> ModelSpec:
-    """Load a :class:`ModelSpec` from a TOML file (see ``models/*.toml``)."""
+    """Load a model spec from a TOML file (see ``models/*.toml``): a :class:`ModelSpec`, or the spec of
+    the kind the file names (``kind = "film"``, :mod:`bayescal.model.kinds`)."""
     data = read_toml(path, "model spec (TOML)")
-    data.pop("kind", None)
+    kind = data.pop("kind", kinds.CALIBRATION)
+    if kind != kinds.CALIBRATION:
+        return kinds.get(str(kind)).spec_from_dict(data, str(path))
     return ModelSpec.from_dict(data, source=str(path))
 
 

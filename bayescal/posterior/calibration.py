@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from bayescal.errors import PosteriorError, SpecError, TableError
+from bayescal.model import kinds
 from bayescal.model.components import EFFECTS, Dark, FactorTerm, Noise, Response, Saturation
 from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.components.settings import SettingFactorDraws, SettingFactors
@@ -171,6 +172,8 @@ class Calibration:
                 "was it truncated? Re-run `bayescal fit`"
             ) from None
         attrs = dt.attrs
+        if attrs.get("kind", kinds.CALIBRATION) != kinds.CALIBRATION:  # a posterior of another model kind
+            return kinds.get(str(attrs["kind"])).load_posterior(path, dt)
         if "spec_toml" not in attrs or "posterior" not in dt.children or "measurements" not in dt.children:
             raise PosteriorError(f"{path} was not written by `bayescal fit` (no spec, posterior or measurements)")
         import tomllib

@@ -76,9 +76,19 @@ class Inversion:
     bound: np.ndarray
     extrapolated: np.ndarray
     channel: str
-    setting: Setting
+    setting: Setting | None
     unit: str
     level: float
+
+    def describe(self, stimulus: str = "stimulus") -> str:
+        """What the table holds: the channel, the unit, the setting of the readings and the interval."""
+        at = ""
+        if self.setting is not None:
+            s = self.setting
+            at = f" at exposure {s.exposure_s:g} s, gain {s.gain:g}, TDI {s.tdi_stages:g}"
+        return (
+            f"{self.channel} {stimulus} ({self.unit}){at}; {self.level:.0%} intervals (one-sided where 'bound' says so)"
+        )
 
     def to_frame(self) -> pd.DataFrame:
         """One row per reading: dn, median, lower, upper, bound (text), extrapolated."""
@@ -158,6 +168,8 @@ def invert(
     seed : int
         Seed of the noise draws.
     """
+    if not isinstance(cal, Calibration):  # a posterior of another model kind inverts its own readings
+        return cal.invert(dn, channel, setting, n_avg=n_avg, prnu=prnu, level=level, noise=noise, seed=seed)
     setting = setting or Setting(cal.reference.exposure_s, cal.reference.gain, cal.reference.tdi_stages)
     values = np.asarray(dn)
     if values.size and not np.all(np.isfinite(values)):

@@ -29,13 +29,15 @@ import pandas as pd
 
 from bayescal.errors import PosteriorError
 from bayescal.io.files import write_json_atomic, write_text_atomic
+from bayescal.model import kinds
 from bayescal.model.components import Saturation
 from bayescal.posterior.calibration import Calibration, Setting
 from bayescal.prediction.invert import invert, radiance_draws
 from bayescal.prediction.readings import predict
 from bayescal.report.figures import colours as colour_cycle
 from bayescal.report.figures import png_base64, subplots
-from bayescal.report.text import fmt, markdown_table, table_rows
+from bayescal.report.page import image, page, table, verdict
+from bayescal.report.text import fmt, markdown_table
 
 __all__ = ["write_report", "uncertainty_budget"]
 
@@ -85,6 +87,9 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
     out = Path(out) if out is not None else fit_dir / "report.html"
     try:
         summary = json.loads((fit_dir / "summary.json").read_text())
+        kind = summary.get("model_kind", kinds.CALIBRATION)
+        if kind != kinds.CALIBRATION:  # another model kind reports itself (bayescal.model.kinds)
+            return kinds.get(str(kind)).write_report(fit_dir, out, seed)
         summary["diagnostics"]["verdict"], summary["lsq"]  # noqa: B018 - the keys the report reads
     except (OSError, UnicodeError, ValueError, KeyError, TypeError) as exc:
         raise PosteriorError(
@@ -338,13 +343,6 @@ def _fig_trace(tree, cal: Calibration) -> str:
 
 
 # ----------------------------------------------------------------- output
-def _html_table(df: pd.DataFrame) -> str:
-    head, rows = table_rows(df)
-    th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
-
-
 def _markdown(data, coef, lsq_ref, budget, examples) -> str:
     d = data["diagnostics"]
     parts = [
@@ -378,26 +376,6 @@ def _markdown(data, coef, lsq_ref, budget, examples) -> str:
     return "\n".join(parts)
 
 
-_CSS = """
-body{font-family:system-ui,sans-serif;max-width:1500px;margin:1.5em auto;padding:0 1em;color:#222}
-table{border-collapse:collapse;margin:.5em 0 1.5em;font-size:13px}
-td,th{border:1px solid #ccc;padding:3px 7px;text-align:right}th{background:#f2f2f2}
-.ok{background:#e7f6e7;border:2px solid #3a3;padding:.6em}
-.failed{background:#fde8e8;border:3px solid #c00;padding:.8em;font-size:1.3em;font-weight:bold}
-img{max-width:100%}
-"""
-
-_CHECK_IMAGES = """
-<script>
-window.addEventListener('load', function () {
-  var imgs = document.images, good = 0;
-  for (var i = 0; i < imgs.length; i++) { if (imgs[i].complete && imgs[i].naturalWidth > 0) good++; }
-  document.body.setAttribute('data-images', good + '/' + imgs.length);
-});
-</script>
-"""
-
-
 def _diagnostics_row(backend: str, d: dict) -> dict:
     """The diagnostics that apply to the backend used (no divergences for a Laplace fit)."""
     misfit = d.get("misfit") or {}
@@ -417,33 +395,26 @@ def _diagnostics_row(backend: str, d: dict) -> dict:
 
 def _html(data, coef, lsq_ref, budget, examples, figures) -> str:
     d = data["diagnostics"]
-    failed = data["status"] != "ok"
-    problems = "".join(f"<li>{html.escape(p)}</li>" for p in d.get("problems", []))
-    banner = (
-        f'<div class="failed" id="verdict">FIT FAILED. Do not use these numbers.<ul>{problems}</ul></div>'
-        if failed
-        else '<div class="ok" id="verdict">Diagnostics passed: the chains converged and the model fits its data '
-        "to within their noise.</div>"
+    banner = verdict(
+        data["status"] == "ok",
+        d.get("problems", []),
+        "Diagnostics passed: the chains converged and the model fits its data to within their noise.",
     )
-    img = lambda key, alt: f'<img alt="{alt}" src="data:image/png;base64,{figures[key]}">'  # noqa: E731
+    img = lambda key, alt: image(figures[key], alt)  # noqa: E731
     diag = pd.DataFrame([_diagnostics_row(data["backend"], d)])
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8">
-<title>bayescal report: {html.escape(data["model"]["name"])}</title><style>{_CSS}</style></head>
-<body>
-<h1>Calibration report: {html.escape(data["model"]["name"])}</h1>
+    body = f"""<h1>Calibration report: {html.escape(data["model"]["name"])}</h1>
 <p>Backend <b>{data["backend"]}</b>, seed {data["seed"]}. The model:</p>
 <ul class="components">{"".join(f"<li>{html.escape(c)}</li>" for c in data["model"]["components"])}</ul>
 {banner}
 <h2>Diagnostics</h2>
-{_html_table(diag)}
+{table(diag)}
 <h2>Coefficients at the reference setting</h2>
 <p>DN = A0 + A1 L + ... with L in {html.escape(data["stimulus_unit"])}: posterior mean and 95 % interval
 (absolute: the sphere's common scale uncertainty included; rel: against the sphere's own scale, comparable with
 least squares), beside the least-squares estimate and its 95 % confidence interval.</p>
-{_html_table(coef)}
+{table(coef)}
 <h2>Least squares at the reference setting (seed 000 Table 1 form)</h2>
-{_html_table(lsq_ref)}
+{table(lsq_ref)}
 <h2>Response curves</h2>
 {img("response", "response curves")}
 <h2>Residuals</h2>
@@ -456,13 +427,11 @@ floors fails the fit: the model would otherwise absorb the misfit into its noise
 <h2>Uncertainty budget of inverted radiance</h2>
 <p>Share of the variance of radiance inverted from one pixel's reading at the reference setting.</p>
 {img("budget", "uncertainty budget")}
-{_html_table(budget)}
+{table(budget)}
 <h2>Derived setting: 2.5 x the reference exposure</h2>
-{_html_table(examples["predict"].drop(columns=["why"]))}
+{table(examples["predict"].drop(columns=["why"]))}
 <h2>Inversion examples (reference setting, one pixel)</h2>
-{_html_table(examples["invert"])}
+{table(examples["invert"])}
 <h2>Traces</h2>
-{img("trace", "trace plots")}
-{_CHECK_IMAGES}
-</body></html>
-"""
+{img("trace", "trace plots")}"""
+    return page(data["model"]["name"], body)

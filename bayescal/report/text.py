@@ -1,57 +1,11 @@
-"""Plain-text summary of a fit for the terminal."""
+"""Numbers and tables as text: for terminals, Markdown and the cells of HTML tables."""
 
 from __future__ import annotations
 
 import numpy as np
 import pandas as pd
 
-__all__ = ["render_summary"]
-
-
-def render_summary(result) -> str:
-    """Readable summary: model, verdict, coefficients with 95 % intervals beside least squares."""
-    spec, layout = result.model.spec, result.model.layout
-    ref = spec.reference
-    lines = [
-        f"Model {spec.name} ({result.backend}, seed {result.seed}): " + "; ".join(result.model.parts.describe()),
-        f"Diagnostics: {result.diagnostics.verdict}"
-        + (
-            f" (max R-hat {result.diagnostics.max_rhat:.4f}, min bulk ESS {result.diagnostics.min_ess_bulk:.0f}, "
-            f"{result.diagnostics.divergences} divergences)"
-            if np.isfinite(result.diagnostics.max_rhat)
-            else ""
-        ),
-        *([f"Note: {result.diagnostics.extra['retried']}"] if "retried" in result.diagnostics.extra else []),
-        "",
-        f"DN = A0 + A1 L + ... at exposure {ref.exposure_s:g} s, gain {ref.gain:g}, TDI {ref.tdi_stages:g}; "
-        f"L in {layout.unit}",
-    ]
-    cmp = result.comparison
-    if len(cmp) == 0:
-        return "\n".join(lines)
-    titles = ("least squares [95% CI]", "Bayes vs sphere [95%]", "Bayes absolute [95%]")
-    header = f"{'ch':>4} {'coef':>4} " + " ".join(f"{t:>34}" for t in titles)
-    lines += [header, "-" * len(header)]
-    for _, r in cmp.iterrows():
-        cells = [f"{r['channel']:>4}", f"{r['coefficient']:>4}"]
-        for key in ("lsq", "bayes_rel", "bayes_abs"):
-            if key in r and np.isfinite(r.get(key, np.nan)):
-                cells.append(f"{_fmt(r[key]):>12} [{_fmt(r[key + '_lo'])}, {_fmt(r[key + '_hi'])}]".rjust(34))
-            else:
-                cells.append(f"{'-':>34}")
-        lines.append(" ".join(cells))
-    lines.append(
-        "'vs sphere': relative to the sphere's radiance scale (what least squares sees); "
-        f"'absolute': with its {spec.sphere.common_rel:.1%} scale uncertainty folded in."
-    )
-    if "lsq_r2" in cmp:
-        r2 = cmp.groupby("channel", sort=False)["lsq_r2"].first()
-        lines.append("Least-squares R^2: " + ", ".join(f"{c} {v:.5f}" for c, v in r2.items()))
-    return "\n".join(lines)
-
-
-def _fmt(x: float) -> str:
-    return f"{x:.5g}"
+__all__ = ["fmt", "table_rows", "markdown_table"]
 
 
 def fmt(v, digits: int = 5) -> str:
