@@ -300,7 +300,7 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
     # or ADC with a 2 % cubic nonlinearity moved the standard's straight-line K by -1.7 % and QE by +1.5 %,
     # and straight-line intervals covered neither (0 of 30 simulated sensors); a cubic through the origin
     # missed a late (quintic) roll-off (0.35); a quartic covers linear, cubic and quintic sensors at
-    # 0.93-0.97 (tests/test_emva1288.py)
+    # 0.93-0.97 (tests/characterization/test_emva1288.py)
     k = _line_posterior(sig[s], dvar[s], w_var[s], n_draws, rng, powers=SLOPE_POWERS)[:, 0]
     # the mean's step-to-step error (source stability) is proportional to the signal
     resp = _line_posterior(

@@ -5,7 +5,6 @@ One self-contained HTML page (figures embedded) beside the fleet directory's tab
 
 from __future__ import annotations
 
-import html
 import os
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import pandas as pd
 from bayescal.fleet.posterior import FleetFit
 from bayescal.io.files import write_text_atomic
 from bayescal.report.figures import colours, png_base64, subplots
+from bayescal.report.page import escape, image, page, table, verdict
 
 __all__ = ["write_fleet_report"]
 
@@ -35,11 +35,8 @@ def write_fleet_report(fleet: FleetFit, out: str | os.PathLike) -> Path:
     d = fleet.draws.diagnostics
     status = "ok" if fleet.ok else "FAILED: " + "; ".join(fleet.problems)
     parts = [
-        "<!doctype html><html><head><meta charset='utf-8'><title>bayescal fleet report</title>",
-        "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
-        "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}.bad{color:#b00}</style></head><body>",
-        f"<h1>Fleet: {html.escape(fleet.spec.name)}</h1>",
-        f"<p class='{'bad' if not fleet.ok else ''}'><b>Status:</b> {html.escape(status)}</p>",
+        f"<h1>Fleet: {escape(fleet.spec.name)}</h1>",
+        verdict(fleet.ok, fleet.problems, f"Status: {status}"),
         f"<p>{len(fleet.cameras)} cameras, {len(fleet.units)} units (camera x campaign), channels "
         f"{', '.join(fleet.channels)}; pooling <b>{fleet.plan.pooling}</b>; "
         f"drift {'on' if fleet.plan.drift else 'off'}. "
@@ -48,16 +45,15 @@ def write_fleet_report(fleet: FleetFit, out: str | os.PathLike) -> Path:
         f"tail ESS {d['min_ess_tail']:.0f}.</p>",
     ]
     if fleet.warnings:
-        parts.append("<ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in fleet.warnings) + "</ul>")
+        parts.append("<ul>" + "".join(f"<li>{escape(w)}</li>" for w in fleet.warnings) + "</ul>")
     for title, png in figures:
-        parts.append(f"<h2>{html.escape(title)}</h2><img src='data:image/png;base64,{png}' style='max-width:100%'>")
+        parts.append(f"<h2>{escape(title)}</h2>{image(png, title)}")
     parts.append("<h2>Population (hyperparameters)</h2>")
-    parts.append(fleet.hyperparameters().to_html(index=False, float_format=lambda v: f"{v:.4g}"))
+    parts.append(table(fleet.hyperparameters()))
     parts.append("<h2>Per unit: fleet beside alone</h2>")
-    parts.append(_unit_table(fleet).to_html(index=False, float_format=lambda v: f"{v:.5g}"))
-    parts.append("</body></html>")
+    parts.append(table(_unit_table(fleet)))
     out = Path(out)
-    write_text_atomic(out, "\n".join(parts))
+    write_text_atomic(out, page(f"fleet {fleet.spec.name}", "\n".join(parts)))
     return out
 
 

@@ -7,7 +7,6 @@ every pixel of the store, read chunk by chunk.
 
 from __future__ import annotations
 
-import html
 import os
 from pathlib import Path
 
@@ -16,6 +15,7 @@ import pandas as pd
 
 from bayescal.io.files import write_text_atomic
 from bayescal.report.figures import png_base64, subplots
+from bayescal.report.page import escape, image, page, table
 from bayescal.report.text import markdown_table
 
 __all__ = ["maps_report"]
@@ -136,25 +136,17 @@ def maps_report(ds, out: str | os.PathLike) -> Path:
     body = [
         "<h1>Per-pixel calibration maps</h1>",
         f"<p>{ds.sizes['y']} x {ds.sizes['x']} pixels from "
-        f"<code>{html.escape(str(ds.attrs.get('stacks', '')))}</code>; "
-        f"bayescal {html.escape(str(ds.attrs.get('bayescal_version', '')))}. The relative gain's systematic "
+        f"<code>{escape(str(ds.attrs.get('stacks', '')))}</code>; "
+        f"bayescal {escape(str(ds.attrs.get('bayescal_version', '')))}. The relative gain's systematic "
         f"(all-pixel) standard uncertainty is {views[0][2]['u_systematic_relative_gain']:.2e}.</p>",
         "<h2>Population</h2>",
-        pd.DataFrame(population).to_html(index=False, float_format=lambda v: f"{v:.4g}"),
+        table(population),
         "<h2>Defects</h2>",
-        defects.to_html(index=False),
+        table(defects),
     ]
     for caption, png in figs:
-        body.append(
-            f"<figure><img src='data:image/png;base64,{png}' style='max-width:100%'>"
-            f"<figcaption>{caption}</figcaption></figure>"
-        )
-    page = (
-        "<!doctype html><html><head><meta charset='utf-8'><title>bayescal maps</title></head><body>"
-        + "\n".join(body)
-        + "</body></html>"
-    )
-    write_text_atomic(out / "maps_report.html", page)
+        body.append(f"<figure>{image(png, caption)}<figcaption>{escape(caption)}</figcaption></figure>")
+    write_text_atomic(out / "maps_report.html", page("per-pixel maps", "\n".join(body)))
     write_text_atomic(
         out / "maps_report.md",
         "# Per-pixel maps\n\n" + markdown_table(population) + "\n\n" + markdown_table(defects) + "\n",

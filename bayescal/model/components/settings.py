@@ -65,7 +65,7 @@ class SettingsSpec:
     from 1/250 s (Table 2), and seed 002's settings chosen by eq. 12 read 6.6 %
     above and 8.8 % below their targets (RMS of log factors 0.070).  With 5 %
     the held-out prediction of a setting 8.8 % low excluded the camera's
-    reading (tests/test_misspecification.py).
+    reading (tests/fitting/test_misspecification.py).
     """
 
     gain_tolerance: float = 0.07

@@ -12,8 +12,7 @@ import pytest
 
 import bayescal as bc
 from bayescal.validation import BenchCamera, Departures, simulate_bench, with_held_out
-
-from .conftest import MODELS
+from tests.conftest import MODELS
 
 
 @pytest.fixture(scope="module")

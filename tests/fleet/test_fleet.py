@@ -27,8 +27,7 @@ from bayescal.fleet.model import (
 from bayescal.fleet.units import fleet_from_frame
 from bayescal.model.spec import FleetSpec
 from bayescal.validation.fleet import SMALL_FLEET, FleetDesign, simulate_fleet
-
-from .conftest import MODELS
+from tests.conftest import MODELS
 
 SPEC = MODELS / "fleet_seed000.toml"
 

@@ -17,8 +17,7 @@ import pytest
 
 import bayescal as bc
 from bayescal.cli import main
-
-from .conftest import MODELS
+from tests.conftest import MODELS
 
 SPEC = str(MODELS / "seed000_bayer.toml")
 

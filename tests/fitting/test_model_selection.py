@@ -60,7 +60,7 @@ def test_f_test_on_exact_polynomials():
     import pandas as pd
 
     table = bc.MeasurementTable.from_frame(pd.DataFrame(rows))
-    from .conftest import MODELS
+    from tests.conftest import MODELS
 
     spec = bc.load_spec(MODELS / "seed000_bayer.toml")
     ft = f_test_orders(table, spec, max_order=3)

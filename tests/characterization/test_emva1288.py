@@ -11,8 +11,7 @@ from bayescal.characterization.emva1288 import characterize
 from bayescal.cli import main
 from bayescal.errors import TableError
 from bayescal.io.emva import load_steps, read_descriptor, reduce_pair, reduce_stack
-
-from .conftest import DATA
+from tests.conftest import DATA
 
 REF = DATA / "emva1288" / "refset001_ccd_12bit"
 

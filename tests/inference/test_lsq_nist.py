@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from bayescal import polyfit
-
-from .conftest import DATA
+from tests.conftest import DATA
 
 
 def read_nist(name):

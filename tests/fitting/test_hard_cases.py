@@ -8,8 +8,7 @@ import pytest
 
 import bayescal as bc
 from bayescal.io.design import Block
-
-from .conftest import MODELS
+from tests.conftest import MODELS
 
 
 def _fit(table, spec, seed=0):

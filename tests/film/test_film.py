@@ -7,8 +7,7 @@ import pytest
 
 import bayescal as bc
 from bayescal.film import FilmCalibration, FilmSpec, fit_film, simulate_film, table1_check, uncertainty_budget_film
-
-from .conftest import MODELS
+from tests.conftest import MODELS
 
 
 @pytest.fixture(scope="module")

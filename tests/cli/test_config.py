@@ -7,6 +7,7 @@ import sys
 import numpy as np
 
 import bayescal as bc
+from tests.conftest import MODELS
 
 
 def test_a_fit_leaves_jax_as_it_found_it(tmp_path):
@@ -19,8 +20,8 @@ import jax, jax.numpy as jnp
 import bayescal as bc
 state = lambda: [jax.config.jax_enable_x64, jax.config.jax_compilation_cache_dir, str(jnp.ones(2).dtype)]
 before = state()
-spec = bc.load_spec({str(bc.__file__).rsplit("/", 2)[0]!r} + "/models/seed000_bayer.toml")
-design = bc.load_design({str(bc.__file__).rsplit("/", 2)[0]!r} + "/models/seed000_design.toml")
+spec = bc.load_spec({str(MODELS / "seed000_bayer.toml")!r})
+design = bc.load_design({str(MODELS / "seed000_design.toml")!r})
 table = bc.simulate(spec, design, seed=1).table
 with warnings.catch_warnings():
     warnings.simplefilter("ignore")

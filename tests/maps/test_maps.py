@@ -22,8 +22,7 @@ from bayescal.maps.model import fit_map_model
 from bayescal.maps.stacks import load_manifest, write_emva_stacks
 from bayescal.maps.store import make_maps, read_maps, write_maps
 from bayescal.validation.sensor import PixelSensor, write_stacks
-
-from .conftest import DATA, MODELS
+from tests.conftest import DATA, MODELS
 
 PHOTONS = [0.0, 3000.0, 10000.0, 30000.0]
 EXPOSURES = [0.05, 0.1, 0.2, 0.4]

@@ -15,8 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import bayescal as bc
-
-from .conftest import MODELS
+from tests.conftest import MODELS
 
 COLUMNS = [
     "channel",

@@ -16,8 +16,7 @@ import pytest
 import bayescal as bc
 from bayescal.fitting.batch import fit_many, fit_models
 from bayescal.validation.sbc import CAMERA_CLASS_PRIORS, prior_datasets, rank_statistics, run_sbc
-
-from .conftest import MODELS
+from tests.conftest import MODELS
 
 
 @pytest.fixture(scope="module")
