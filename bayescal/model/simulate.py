@@ -158,7 +158,7 @@ def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndar
     channel, exposure, gain, TDI stages and temperature; docs/architecture.md, section 2)."""
     ch = rows["channel"].to_numpy()
     t, g, m = (rows[k].to_numpy(dtype=float) for k in ("exposure_s", "gain", "tdi_stages"))
-    x = effective_stimulus(stimulus, t, g, m, spec) * _effect_factors(truth, rows)
+    x = effective_stimulus(stimulus, t, g, m, spec) * _effect_factors(truth, rows, spec)
     order = max(len(v) for v in truth.response.values())
     coef = np.zeros((len(rows), order))
     for c, values in truth.response.items():
@@ -176,7 +176,7 @@ def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndar
     return dark + signal, signal, var_t
 
 
-def _effect_factors(truth: Truth, rows: pd.DataFrame) -> np.ndarray | float:
+def _effect_factors(truth: Truth, rows: pd.DataFrame, spec: ModelSpec) -> np.ndarray | float:
     """The true factors of the optional effects named in the truth (``[truth.effects.<section>]``)."""
     factor = 1.0
     for section, params in truth.effects.items():
@@ -184,7 +184,7 @@ def _effect_factors(truth: Truth, rows: pd.DataFrame) -> np.ndarray | float:
             cls = effect(section)
         except KeyError:
             raise SpecError(f"[truth.effects] names '{section}', which is not a registered effect") from None
-        factor = factor * cls.true_factor(params, rows)
+        factor = factor * cls.true_factor(params, rows, spec)
     return factor
 
 

@@ -429,7 +429,7 @@ def _calibrated_range(frame, spec: ModelSpec) -> CalibratedRange:
 
 def _factor_terms(spec: ModelSpec, draws: dict, frame, flat) -> tuple[FactorTerm, ...]:
     """The factors on the effective stimulus that predictions apply: the settings', then each effect's."""
-    effects = (cls.term(spec.effect(cls.section), draws, frame) for cls in EFFECTS)
+    effects = (cls.term(spec.effect(cls.section), spec, draws, frame) for cls in EFFECTS)
     return SettingFactors.terms(draws, frame, spec.reference, flat) + tuple(t for t in effects if t is not None)
 
 

@@ -101,12 +101,13 @@ class Effect(StimulusFactor):
         return {}
 
     @classmethod
-    def term(cls, section: Any, draws: Mapping[str, np.ndarray], frame: pd.DataFrame) -> FactorTerm | None:
+    def term(cls, section: Any, spec: Any, draws: Mapping[str, np.ndarray], frame: pd.DataFrame) -> FactorTerm | None:
         """The effect in a calibration's predictions, from its reported draws (None: not in them)."""
         return None
 
     @classmethod
-    def true_factor(cls, params: Mapping[str, float], rows: pd.DataFrame) -> np.ndarray:
+    def true_factor(cls, params: Mapping[str, Any], rows: pd.DataFrame, spec: Any) -> np.ndarray:
         """The simulator's factor for every row of a simulated table (``params``: the design's
-        ``[truth.effects.<section>]`` table)."""
+        ``[truth.effects.<section>]`` table; ``rows``: channel, exposure_s, gain, tdi_stages,
+        temperature_c of every row)."""
         return np.ones(len(rows))

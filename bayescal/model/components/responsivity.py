@@ -107,7 +107,7 @@ class ResponsivityTemperature(Effect):
         return {"responsivity_tc": draws["responsivity_tc"]}
 
     @classmethod
-    def term(cls, section: ResponsivitySpec, draws, frame) -> ResponsivityTerm | None:
+    def term(cls, section: ResponsivitySpec, spec, draws, frame) -> ResponsivityTerm | None:
         if "responsivity_tc" not in draws:
             return None
         coef = np.asarray(draws["responsivity_tc"], dtype=float)
@@ -115,7 +115,7 @@ class ResponsivityTemperature(Effect):
         return ResponsivityTerm(coef.reshape((-1,) + coef.shape[2:]), channels, section.reference_c)
 
     @classmethod
-    def true_factor(cls, params, rows) -> np.ndarray:
+    def true_factor(cls, params, rows, spec) -> np.ndarray:
         """``params``: ``coefficient_per_c`` (one value, or a table channel -> value) and
         ``reference_c`` (default 20); rows without a temperature are at the reference."""
         known = {"coefficient_per_c", "reference_c"}
