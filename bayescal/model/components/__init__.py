@@ -18,6 +18,7 @@ from bayescal.model.components.response import Response, ResponseSpec
 from bayescal.model.components.responsivity import ResponsivityTemperature
 from bayescal.model.components.saturation import Saturation, SaturationSpec
 from bayescal.model.components.settings import SettingFactors, SettingsSpec
+from bayescal.model.components.shutter import ShutterOffset
 from bayescal.model.components.sphere import Sphere, SphereSpec
 
 __all__ = [
@@ -49,7 +50,7 @@ __all__ = [
 CORE: tuple[type[Component], ...] = (Response, Dark, Sphere, Noise, Saturation, SettingFactors)
 
 #: the optional effects: factors on the effective stimulus with a spec section of their own
-EFFECTS: tuple[type[Effect], ...] = (ResponsivityTemperature,)
+EFFECTS: tuple[type[Effect], ...] = (ResponsivityTemperature, ShutterOffset)
 
 
 def effect(section: str) -> type[Effect]:
