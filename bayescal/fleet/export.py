@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from bayescal.errors import PosteriorError
-from bayescal.fleet.posterior import FleetFit, _safe
+from bayescal.fleet.posterior import FleetFit, safe_name
 from bayescal.model.basis import response_monomials
 
 __all__ = ["fleet_calibration", "write_calibration"]
@@ -53,7 +53,7 @@ def write_calibration(
     check_output_dir(out_dir)
     source = template or camera or fleet.cameras[0]
     fleet.camera_index(source)
-    path = fleet_dir / "cameras" / _safe(source) / "posterior.nc"
+    path = fleet_dir / "cameras" / safe_name(source) / "posterior.nc"
     if not path.is_file():
         raise PosteriorError(f"{path} is missing; the fleet directory is incomplete (re-run `bayescal fleet`)")
     tree = az.from_netcdf(path)

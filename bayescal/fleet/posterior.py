@@ -374,7 +374,7 @@ class FleetFit:
                     u = int(np.flatnonzero(self.units["camera"].to_numpy() == camera)[-1])
                     with warnings.catch_warnings():  # the unit's verdict is in units.csv and the fleet's warnings
                         warnings.simplefilter("ignore", FitFailedWarning)
-                        self.fits.fit(u).save(stage(f"cameras/{_safe(camera)}"))
+                        self.fits.fit(u).save(stage(f"cameras/{safe_name(camera)}"))
         return Path(out_dir)
 
     def _dataset(self):
@@ -563,5 +563,6 @@ def compare_pooling(fleet: FleetTable, spec: ModelSpec, fits: UnitFits, seed: in
     ]
 
 
-def _safe(name: str) -> str:
+def safe_name(name: str) -> str:
+    """A camera's name as a directory name (letters, digits, ``-_.``; anything else ``_``)."""
     return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)

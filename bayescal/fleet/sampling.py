@@ -38,7 +38,8 @@ class FleetDraws:
 THREADS = 2
 
 
-def _priors(plan: Plan) -> dict[str, float]:
+def scale_priors(plan: Plan) -> dict[str, float]:
+    """The half-normal prior scale of every sampled log scale of stage two."""
     return {
         "sigma_camera": plan.spread_prior,
         "sigma_channel": plan.spread_prior,
@@ -67,7 +68,7 @@ def _chain_program(plan: Plan, warmup: int, draws: int, target: float):
     from jax.scipy.stats import norm
     from numpyro.infer.hmc import hmc
 
-    priors = _priors(plan)
+    priors = scale_priors(plan)
     sizes = list(plan.sampled().items())
 
     def potential(u, arrays):

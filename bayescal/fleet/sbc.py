@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from bayescal.fleet.model import FleetData, Plan, block_scales, design_of, with_units
-from bayescal.fleet.sampling import _priors, sample_fleet
+from bayescal.fleet.sampling import scale_priors, sample_fleet
 from bayescal.model.spec import FleetSpec
 
 __all__ = ["FleetSBC", "prior_fleet", "run_fleet_sbc"]
@@ -28,7 +28,7 @@ def prior_fleet(plan: Plan, data: FleetData, rng: np.random.Generator, design=No
     """One fleet from the stage-two prior: the true values by name and the units' reports
     ``(U, K, C)`` (standardised, as :class:`~.model.FleetData` holds them).  ``design``:
     :func:`~.model.design_of` of ``data``, when the caller already has it."""
-    priors = _priors(plan)
+    priors = scale_priors(plan)
     hyper = {}
     for name, size in plan.sampled().items():
         v = np.abs(rng.normal(0.0, priors[name], size))

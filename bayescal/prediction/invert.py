@@ -232,7 +232,7 @@ def inversion_lut(
     return lut
 
 
-def _quantiles(draws: np.ndarray, probs) -> np.ndarray:
+def sorted_quantiles(draws: np.ndarray, probs) -> np.ndarray:
     """Quantiles along axis 1 (numpy's default linear rule) from one in-place sort."""
     draws.sort(axis=1)
     n = draws.shape[1]
@@ -271,7 +271,7 @@ def _summaries(cal, channel, values, setting, n_avg, prnu, level, noise, seed) -
         v = values[start : start + _CHUNK]
         clipped = v >= sat
         draws = radiance_draws(cal, channel, np.where(clipped, sat, v), setting, n_avg=n_avg, prnu=prnu, z=z)
-        q_lo, q_med, q_hi, q1_lo, q1_hi = _quantiles(draws, (tail, 0.5, 1 - tail, 1 - level, level))
+        q_lo, q_med, q_hi, q1_lo, q1_hi = sorted_quantiles(draws, (tail, 0.5, 1 - tail, 1 - level, level))
         at_dark = ~clipped & (q_lo <= 0.0)
         dark_hi = _truncated_upper(draws, at_dark, level) if at_dark.any() else q1_hi
         block = out[:, start : start + v.size]

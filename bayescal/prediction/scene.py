@@ -29,7 +29,7 @@ import pandas as pd
 from bayescal.errors import SpecError
 from bayescal.posterior.calibration import Calibration, Setting
 from bayescal.prediction.images import channel_views, invert_image
-from bayescal.prediction.invert import _quantiles, noise_normals, radiance_draws
+from bayescal.prediction.invert import sorted_quantiles, noise_normals, radiance_draws
 
 __all__ = ["SceneChoice", "choose_for_scene"]
 
@@ -212,7 +212,7 @@ def _quantile_table(cal: Calibration, channel: str, dn: np.ndarray, setting, n_a
         v = dn[start : start + _BLOCK].astype(float)
         draws = radiance_draws(cal, channel, np.minimum(v, sat), setting, n_avg=n_avg, prnu=prnu, z=z)
         out[4, start : start + v.size] = draws.std(axis=1)
-        out[:4, start : start + v.size] = _quantiles(draws, _PROBS)
+        out[:4, start : start + v.size] = sorted_quantiles(draws, _PROBS)
 
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:  # numpy releases the GIL
         list(pool.map(block, range(0, dn.size, _BLOCK)))

@@ -1,0 +1,33 @@
+"""The package's structure holds: no private helper is imported across modules, and every component and
+effect declares what it samples and reports (the layers themselves are import-linter's contracts, checked
+in CI: ``lint-imports``)."""
+
+import ast
+from pathlib import Path
+
+import bayescal
+from bayescal.model.components import CORE, EFFECTS
+
+PACKAGE = Path(bayescal.__file__).parent
+
+
+def test_no_private_name_is_imported_across_modules():
+    crossing = []
+    for path in PACKAGE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("bayescal"):
+                crossing += [
+                    f"{path.relative_to(PACKAGE)}: {node.module}.{a.name}"
+                    for a in node.names
+                    if a.name.startswith("_") and not a.name.startswith("__")
+                ]
+    assert not crossing, crossing
+
+
+def test_every_component_declares_its_section_sites_and_quantities():
+    sections = [c.section for c in CORE + EFFECTS]
+    assert len(set(sections)) == len(sections)
+    for c in CORE + EFFECTS:
+        assert c.__doc__ and c.sites is not None and c.reported is not None, c
+    for e in EFFECTS:
+        e.spec_class()  # every effect's section has defaults (the effect switched off or automatic)
