@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from bayescal.fleet.model import FleetData, Plan, block_scales, design_of, with_units
-from bayescal.fleet.sampling import scale_priors, sample_fleet
+from bayescal.fleet.sampling import sample_fleet, scale_priors
 from bayescal.model.spec import FleetSpec
 
 __all__ = ["FleetSBC", "prior_fleet", "run_fleet_sbc"]

@@ -29,7 +29,7 @@ import pandas as pd
 from bayescal.errors import SpecError
 from bayescal.posterior.calibration import Calibration, Setting
 from bayescal.prediction.images import channel_views, invert_image
-from bayescal.prediction.invert import sorted_quantiles, noise_normals, radiance_draws
+from bayescal.prediction.invert import noise_normals, radiance_draws, sorted_quantiles
 
 __all__ = ["SceneChoice", "choose_for_scene"]
 
