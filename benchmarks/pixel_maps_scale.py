@@ -95,7 +95,7 @@ def main() -> None:
         shutil.rmtree(out, ignore_errors=True)
         t = time.perf_counter()
         proc = subprocess.Popen(
-            [sys.executable, "-m", "bayescal.cli.app", "maps", str(stacks), "--out", str(out), "--quiet"],
+            [sys.executable, "-m", "bayescal.cli", "maps", str(stacks), "--out", str(out), "--quiet"],
             env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
         peak = 0.0

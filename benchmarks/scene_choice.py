@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import bayescal as bc
-from bayescal.report.html import markdown_table
+from bayescal.report.text import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

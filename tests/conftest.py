@@ -30,3 +30,24 @@ def _release_compiled_programs():
 
     clear_caches()
     gc.collect()
+
+
+@pytest.fixture
+def float64():
+    """Run a test that calls bayescal's JAX internals directly inside bayescal's numerics scope
+    (float64), as the package's own entry points do; JAX's settings are put back after it."""
+    with bc.numerics():
+        yield
+
+
+@pytest.fixture(autouse=True)
+def _no_global_float64():
+    """No test leaves JAX in float64 for the tests after it (bayescal scopes its numerics), so no test
+    passes only because an earlier one switched float64 on."""
+    yield
+    import sys
+
+    if "jax" in sys.modules:
+        import jax
+
+        assert not jax.config.jax_enable_x64, "a test left JAX in float64 (use the float64 fixture or bc.numerics())"

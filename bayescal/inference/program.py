@@ -155,7 +155,32 @@ def _build(model: Callable, example, obs: str = "obs") -> Program:
         potential=computes(jax.jit(potential)),
         value_and_grad=computes(jax.jit(jax.value_and_grad(potential))),
         hessian=computes(jax.jit(jax.hessian(potential))),
-        constrain=computes(jax.jit(jax.vmap(constrain_one, in_axes=(0, None)))),
+        constrain=computes(_in_blocks(jax.jit(jax.vmap(constrain_one, in_axes=(0, None))))),
         unconstrain=computes(jax.jit(unconstrain)),
-        loglik=computes(jax.jit(jax.vmap(loglik_one, in_axes=(0, None)))),
+        loglik=computes(_in_blocks(jax.jit(jax.vmap(loglik_one, in_axes=(0, None))))),
     )
+
+
+#: rows of a batch of draws evaluated per call: every batch size (one start, 200 refit draws, 4000
+#: posterior draws) runs the one program compiled for this size
+BLOCK = 500
+
+
+def _in_blocks(batched: Callable) -> Callable:
+    """``batched(z_batch, data)`` over blocks of :data:`BLOCK` rows (the last padded), the results joined."""
+
+    def run(z_batch, data):
+        z_batch = np.asarray(z_batch)
+        n = z_batch.shape[0]
+        parts = []
+        for first in range(0, n, BLOCK):
+            block = z_batch[first : first + BLOCK]
+            rows = block.shape[0]
+            if rows < BLOCK:
+                block = np.concatenate([block, np.repeat(block[-1:], BLOCK - rows, axis=0)])
+            parts.append(jax.tree.map(lambda a, r=rows: np.asarray(a)[:r], batched(block, data)))
+        if len(parts) == 1:
+            return parts[0]
+        return jax.tree.map(lambda *a: np.concatenate(a), *parts)
+
+    return run

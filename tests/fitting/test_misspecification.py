@@ -173,7 +173,7 @@ def test_dark_rows_that_disagree_with_the_bright_intercept_are_flagged(spec):
         assert not fit.ok and any("dark rows at gain 1" in p for p in fit.diagnostics.problems)
 
 
-def test_clip_window_likelihood_closed_form():
+def test_clip_window_likelihood_closed_form(float64):
     """The reading ``Y* - loss``, ``Y* ~ N(mu, s)``, ``loss ~ U(lo, hi)``: its density is
     ``[Phi((y + hi - mu) / s) - Phi((y + lo - mu) / s)] / (hi - lo)``; it integrates to 1, equals the
     Normal density when the window is narrow, and stays accurate 8-9 sd into the tails."""

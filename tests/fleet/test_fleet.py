@@ -139,12 +139,9 @@ def _dense(plan, data, hyper):
     return total
 
 
-def test_marginal_likelihood_matches_the_dense_gaussian(small_fleet):
+def test_marginal_likelihood_matches_the_dense_gaussian(small_fleet, float64):
     import jax.numpy as jnp
 
-    import bayescal
-
-    bayescal.enable_numerics()
     fleet = fleet_from_frame(_frame(small_fleet), source="small")
     rng = np.random.default_rng(0)
     data, plan = fleet_data(_Fits(fleet, 3, rng), FleetSpec(), 0.03)
@@ -160,16 +157,14 @@ def test_marginal_likelihood_matches_the_dense_gaussian(small_fleet):
     assert f2 - f1 == pytest.approx(d2 - d1, rel=1e-7, abs=1e-6)
 
 
-def test_marginal_gradient_matches_the_dense_gaussian(small_fleet):
+def test_marginal_gradient_matches_the_dense_gaussian(small_fleet, float64):
     """The closed-form gradient (posterior mean and covariance blocks, no reverse pass through
     the factors) against central differences of the dense Gaussian, in the sampled coordinates."""
     import jax
     import jax.numpy as jnp
 
-    import bayescal
     from bayescal.fleet.sampling import _unpack
 
-    bayescal.enable_numerics()
     fleet = fleet_from_frame(_frame(small_fleet), source="small")
     rng = np.random.default_rng(4)
     data, plan = fleet_data(_Fits(fleet, 3, rng), FleetSpec(), 0.03)

@@ -10,6 +10,9 @@ import pytest
 from bayescal import polyfit
 from tests.conftest import DATA
 
+#: the certified values are compared with JAX models evaluated here too: in float64, as bayescal computes
+pytestmark = pytest.mark.usefixtures("float64")
+
 
 def read_nist(name):
     lines = (DATA / "nist_strd" / f"{name}.dat").read_text().splitlines()
