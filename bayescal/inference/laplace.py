@@ -86,20 +86,37 @@ MAX_STEP_SD = 10.0
 NEWTON_DECREMENT = 1e-14
 #: a mode is converged when its squared Newton decrement is below this
 CONVERGED_DECREMENT = 1e-8
+#: full Newton steps that polish a converged mode
+POLISH_STEPS = 2
 
 
 def _newton(program: Program, data: ModelData, z: np.ndarray) -> tuple[np.ndarray, bool, int]:
-    """Damped saddle-free Newton from ``z``: ``(z, converged, steps)``."""
+    """Damped saddle-free Newton from ``z``: ``(z, converged, steps)``.
+
+    Once the squared Newton decrement is below :data:`CONVERGED_DECREMENT` the iterate is in the
+    quadratic regime: up to :data:`POLISH_STEPS` full steps then polish it (no line search, whose
+    test would be decided by the rounding of the potential there) while they still shrink the
+    decrement below :data:`NEWTON_DECREMENT`.
+    """
     value, grad = (np.asarray(a) for a in program.value_and_grad(z, data))
+    polish = 0
     for step in range(NEWTON_STEPS):
         if not (np.isfinite(value) and np.all(np.isfinite(grad))):
             return z, False, step
         precond = _preconditioner(np.asarray(program.hessian(z, data)))
         g_w = precond.T @ grad  # the gradient in whitened coordinates
         decrement = float(g_w @ g_w)
-        if decrement < NEWTON_DECREMENT:
-            return z, True, step
+        if decrement < NEWTON_DECREMENT or polish == POLISH_STEPS:
+            return z, decrement < CONVERGED_DECREMENT, step
         direction = -(precond @ g_w)
+        if decrement < CONVERGED_DECREMENT:  # quadratic regime: a full step
+            trial = z + direction
+            v, g = (np.asarray(a) for a in program.value_and_grad(trial, data))
+            if not (np.isfinite(v) and np.all(np.isfinite(g))):
+                return z, True, step
+            polish += 1
+            z, value, grad = trial, v, g
+            continue
         t = min(1.0, MAX_STEP_SD / np.sqrt(decrement))
         while t > 1e-12:
             trial = z + t * direction
@@ -107,8 +124,8 @@ def _newton(program: Program, data: ModelData, z: np.ndarray) -> tuple[np.ndarra
             if np.isfinite(v) and v <= value - 1e-4 * t * decrement:
                 break
             t *= 0.5
-        else:  # no step decreases the potential: at the mode to rounding, or leave it to BFGS
-            return z, decrement < CONVERGED_DECREMENT, step
+        else:  # no step decreases the potential: leave it to BFGS
+            return z, False, step
         z, value, grad = trial, v, g
     return z, False, NEWTON_STEPS
 
