@@ -153,7 +153,7 @@ def _parser() -> argparse.ArgumentParser:
     mp.set_defaults(func=_cmd_maps)
     pl = sub.add_parser("plan", help="choose gain/exposure/TDI so the next frame lands in a DN window")
     pl.add_argument("posterior", help="fit directory or its posterior.nc")
-    pl.add_argument("--channel", required=True)
+    pl.add_argument("--channel", required=True, help="channel the reading (or the scene) is of")
     pl.add_argument("--dn", type=_finite, help="reading at the current setting")
     pl.add_argument("--current", type=_setting_values, help="current setting: EXPOSURE_S[,GAIN[,TDI[,TEMPERATURE_C]]]")
     pl.add_argument("--radiance", "--stimulus", dest="stimulus", type=_finite, help="known scene stimulus instead")

@@ -112,8 +112,7 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
         "residuals": _fig_residuals(cal, frame),
         "misfit": _fig_misfit(summary["diagnostics"].get("misfit"), summary["diagnostics"].get("holdout")),
         "budget": _fig_budget(budget),
-        "trace": _fig_trace(tree, cal),
-    }
+    } | _fig_chains(tree, summary["backend"])
     data = {
         "status": summary["status"],
         "verdict": summary["diagnostics"]["verdict"],
@@ -332,14 +331,24 @@ def _fig_budget(budget: pd.DataFrame) -> str:
     return _png(fig)
 
 
-def _fig_trace(tree, cal: Calibration) -> str:
-    gain = np.asarray(tree["posterior"]["gain_rel"])  # (chain, draw, channel)
-    fig, axes = subplots(1, gain.shape[-1], figsize=(4.6 * gain.shape[-1], 2.6), squeeze=False)
-    for c, ax in enumerate(axes[0]):
-        for chain in range(gain.shape[0]):
-            ax.plot(gain[chain, :, c], lw=0.4, alpha=0.8)
-        ax.set(title=f"gain {cal.channels[c]} (sphere-relative), per chain", xlabel="draw")
-    return _png(fig)
+#: backends whose draws come in chains (for the others, trace and rank plots say nothing)
+CHAINED = ("nuts", "blackjax", "emcee")
+
+
+def _fig_chains(tree, backend: str) -> dict[str, str]:
+    """arviz's trace-and-density and rank plots of the sphere-relative gains, for a backend with chains."""
+    if backend not in CHAINED:
+        return {}
+    import arviz_plots as azp
+    from matplotlib import pyplot as plt
+
+    out = {}
+    for key, plot in (("trace", azp.plot_trace_dist), ("rank", azp.plot_rank)):
+        pc = plot(tree, var_names=["gain_rel"], backend="matplotlib")
+        fig = pc.viz["figure"].item()
+        out[key] = png_base64(fig)
+        plt.close(fig)  # arviz draws through pyplot: leave a user's figure registry as it was
+    return out
 
 
 # ----------------------------------------------------------------- output
@@ -374,6 +383,17 @@ def _markdown(data, coef, lsq_ref, budget, examples) -> str:
         "",
     ]
     return "\n".join(parts)
+
+
+def _chains_section(figures: dict) -> str:
+    if "trace" not in figures:
+        return "<h2>Chains</h2><p>Laplace draws are independent draws from a Gaussian: no chains to compare.</p>"
+    return (
+        "<h2>Chains</h2><p>Sphere-relative gains: traces and densities per chain, and the rank plot "
+        "(each chain's ranks should be uniform; arviz).</p>"
+        + image(figures["trace"], "trace plots")
+        + image(figures["rank"], "rank plots")
+    )
 
 
 def _diagnostics_row(backend: str, d: dict) -> dict:
@@ -432,6 +452,5 @@ floors fails the fit: the model would otherwise absorb the misfit into its noise
 {table(examples["predict"].drop(columns=["why"]))}
 <h2>Inversion examples (reference setting, one pixel)</h2>
 {table(examples["invert"])}
-<h2>Traces</h2>
-{img("trace", "trace plots")}"""
+{_chains_section(figures)}"""
     return page(data["model"]["name"], body)
