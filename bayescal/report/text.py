@@ -27,8 +27,5 @@ def table_rows(df: pd.DataFrame) -> tuple[list[str], list[list[str]]]:
 
 
 def markdown_table(df: pd.DataFrame) -> str:
-    """A DataFrame as a Markdown table (numbers to 5 significant digits)."""
-    head, rows = table_rows(df)
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
+    """A DataFrame as a Markdown table (numbers to 5 significant digits, missing values '-'; tabulate)."""
+    return df.astype(object).where(df.notna(), None).to_markdown(index=False, floatfmt=".5g", missingval="-")

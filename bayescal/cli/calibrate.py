@@ -1,0 +1,153 @@
+"""Verbs that fit and check calibrations: fit, demo, simulate, select, sbc, report."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def cmd_fit(args) -> int:
+    from bayescal import load_spec
+    from bayescal.io.files import check_output_dir
+    from bayescal.model import kinds
+
+    check_output_dir(args.out)
+    spec = load_spec(args.model)
+    table = kinds.load_table(spec, args.data)  # the table of the spec's kind (a camera's, a film's)
+    return run_fit(table, spec, args.backend, args.seed, Path(args.out), args.quiet, report=args.report)
+
+
+def run_fit(
+    table, spec, backend, seed, out: Path, quiet: bool, report: bool = False, measurements: bool = False
+) -> int:
+    import warnings
+
+    from bayescal import FitFailedWarning, fit
+    from bayescal.cli.progress import progress_bar, stage_reporter
+
+    inf = spec.inference
+    if backend == "emcee":
+        total, desc = inf.emcee_burn + inf.emcee_steps, "emcee (ensemble steps)"
+    else:
+        total, desc = inf.warmup + inf.draws, f"{backend} ({inf.chains} chains)"
+    sampling = backend in ("nuts", "blackjax", "emcee")
+    with progress_bar(total, desc, quiet or not sampling) as tick:  # draws on a terminal only
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FitFailedWarning)  # reported below, loudly
+            result = fit(table, spec, backend, seed=seed, progress=tick, stage=stage_reporter(quiet))
+    result.save(out, measurements=measurements)
+    print(result.summary_text())
+    if report and result.posterior is not None:
+        from bayescal.report.html import write_report
+
+        write_report(out, seed=seed)
+    print(f"\nwrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir() if not p.name.startswith("."))))
+    if not result.ok:
+        bar = "!" * 72
+        print(f"\n{bar}\nFIT FAILED: {result.diagnostics.verdict}\nDo not use these numbers.\n{bar}", file=sys.stderr)
+        return 3
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from bayescal import load_design, load_spec, simulate
+    from bayescal.io.files import check_output_dir
+    from bayescal.io.resources import models_dir
+
+    design = load_design(models_dir() / "seed000_design.toml")
+    spec = load_spec(design.spec)
+    out = check_output_dir(args.out)
+    sim = simulate(spec, design, seed=args.seed)
+    print(f"Simulated the seed 000 Bayer CCD: {len(sim.table)} rows, sphere scale error {sim.sphere_scale - 1:+.2%}")
+    print(
+        "True gains (DN per W m^-2 sr^-1 at gain 1, 1/250 s): "
+        + ", ".join(f"{c} {v[0]:g}" for c, v in sim.truth.response.items())
+    )
+    return run_fit(sim.table, spec, args.backend, args.seed, out, args.quiet, report=True, measurements=True)
+
+
+def cmd_simulate(args) -> int:
+    from bayescal import load_design, load_spec, simulate
+    from bayescal.errors import SpecError
+
+    design = load_design(args.design)
+    spec_path = args.model or design.spec
+    if spec_path is None:
+        raise SpecError("the design names no spec; pass --model")
+    sim = simulate(load_spec(spec_path), design, seed=args.seed)
+    sim.table.write_csv(args.out)
+    print(f"wrote {len(sim.table)} rows to {args.out} (sphere scale drawn: {sim.sphere_scale:.4f})")
+    return 0
+
+
+def cmd_select(args) -> int:
+    import warnings
+
+    from bayescal import FitFailedWarning, load_spec, load_table
+    from bayescal.fitting.select import compare_specs, f_test_orders, order_candidates
+
+    if args.pooling:
+        from bayescal.fleet import compare_pooling, load_fleet_table
+        from bayescal.fleet.stage1 import fit_units
+
+        spec, fleet = load_spec(args.model), load_fleet_table(args.data)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FitFailedWarning)
+            fits = fit_units(
+                fleet, spec, "laplace" if args.backend not in ("laplace", "nuts") else args.backend, seed=args.seed
+            )
+        print("PSIS-LOO over units (elpd_diff: this pooling minus the best; dse: its standard error):")
+        print(compare_pooling(fleet, spec, fits, seed=args.seed).to_string(float_format="%.2f"))
+        return 0
+    table, spec = load_table(args.data), load_spec(args.model)
+    off = tuple(x for x in args.without.split(",") if x)
+    specs = order_candidates(spec, tuple(int(o) for o in args.orders), off)
+    from bayescal.cli.progress import stage_reporter
+
+    stage_reporter()(f"fitting {len(specs)} candidate models ({args.backend}) for PSIS-LOO")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FitFailedWarning)
+        cmp = compare_specs(table, specs, backend=args.backend, seed=args.seed)
+    print("PSIS-LOO (elpd_diff: this model minus the best; dse: its standard error):")
+    print(cmp.to_string(float_format="%.2f"))
+    best = cmp.index[0]
+    print(f"best: {best}" + ("" if cmp.iloc[0]["fit_ok"] else " (its fit FAILED its diagnostics)"))
+    ft = f_test_orders(table, spec, max_order=max(int(o) for o in args.orders))
+    if len(ft):
+        print("\nleast-squares F-test per channel at the reference setting (baseline):")
+        print(ft.to_string(index=False, float_format="%.4g"))
+    return 0
+
+
+def cmd_sbc(args) -> int:
+    from bayescal import build_model, load_spec, load_table
+    from bayescal.cli.progress import progress_bar
+    from bayescal.validation.sbc import run_sbc
+
+    model = build_model(load_table(args.data), load_spec(args.model))
+    with progress_bar(args.sims, f"SBC ({args.backend})") as bar:
+        result = run_sbc(model, args.sims, args.backend, seed=args.seed, progress=bar)
+    result.save(args.out)
+    print(result.to_markdown().split("\n\n|")[0])
+    print(f"wrote {args.out}.csv, {args.out}.md, {args.out}.png")
+    return 0 if result.batch.converged.mean() >= 0.99 else 1
+
+
+def cmd_report(args) -> int:
+    from bayescal.report.html import write_report
+
+    fit_dir = Path(args.fit_dir)
+    if not (fit_dir / "summary.json").exists():
+        from bayescal.errors import SpecError
+
+        raise SpecError(f"{fit_dir} has no summary.json; expected a directory written by `bayescal fit`")
+    if not (fit_dir / "posterior.nc").exists():
+        from bayescal.errors import SpecError
+
+        raise SpecError(f"{fit_dir} holds a least-squares fit (no posterior.nc); a report needs a Bayesian backend")
+    from bayescal.cli.progress import stage_reporter
+
+    stage_reporter()("drawing the report's figures and tables")
+    path = write_report(fit_dir, args.out, seed=args.seed)
+    print(f"wrote {path} (+ {path.with_suffix('.json').name}, {path.with_suffix('.md').name})")
+    return 0

@@ -1,0 +1,35 @@
+"""The ``characterize`` verb: EMVA 1288 characterisation."""
+
+from __future__ import annotations
+
+import sys
+
+
+def cmd_characterize(args) -> int:
+    from bayescal.characterization.emva1288 import characterize, plot_curves
+    from bayescal.cli.progress import stage_reporter
+    from bayescal.io.emva import load_steps
+    from bayescal.io.files import check_output_dir, staged_directory, write_json_atomic
+
+    out = check_output_dir(args.out)
+    stage = stage_reporter()
+    stage(f"reading {args.input} (image pairs and stacks are reduced streaming)")
+    steps = load_steps(args.input)
+    stage("standard method and posteriors")
+    res = characterize(steps, seed=args.seed)
+    with staged_directory(out, kind="characterization") as stage:
+        res.table.to_csv(stage("characterization.csv"), index=False, float_format="%.8g")
+        write_json_atomic(stage("characterization.json"), res.to_dict())
+        res.curves.to_csv(stage("curves.csv"), index=False, float_format="%.8g")
+        plot_curves(res, stage("photon_transfer.png"))
+    print(f"EMVA 1288 characterisation of {args.input} (standard point estimate | posterior median [95 %]):")
+    print(res.table.to_string(index=False, float_format="%.5g"))
+    verdict = {True: "compatible", False: "NOT compatible", None: "not determined (one dark exposure time)"}[
+        res.dark_current_compatible
+    ]
+    print(f"dark current from the mean and from the variance: {verdict} (95 % interval of their difference)")
+    print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir() if not p.name.startswith("."))))
+    if res.problems:
+        print("CHARACTERISATION IMPLAUSIBLE:\n  " + "\n  ".join(res.problems), file=sys.stderr)
+        return 3
+    return 0

@@ -1,0 +1,116 @@
+"""The fleet verbs: fleet, fleet-query, fleet-simulate."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def cmd_fleet(args) -> int:
+    from bayescal.cli.progress import progress_bar, stage_reporter
+    from bayescal.fleet import compare_pooling, fit_fleet, load_fleet_table
+    from bayescal.io.files import check_output_dir, write_text_atomic
+    from bayescal.model.spec import load_spec
+
+    check_output_dir(args.out)
+    spec = load_spec(args.model)
+    if args.pooling:
+        spec = spec.replace(fleet={"pooling": args.pooling})
+    fleet = load_fleet_table(args.data)
+    stage = stage_reporter(args.quiet)
+    with progress_bar(len(fleet.units), "units", quiet=args.quiet) as tick:
+        result = fit_fleet(fleet, spec, args.backend, seed=args.seed, progress=tick, stage=stage)
+    d = result.draws.diagnostics
+    stage(
+        f"hierarchy: {d['divergences']} divergences, R-hat {d['max_rhat']:.4f}, "
+        f"ESS {min(d['min_ess_bulk'], d['min_ess_tail']):.0f}"
+    )
+    result.save(args.out)
+    if args.compare_pooling:
+        stage("comparing no / partial / complete pooling (PSIS-LOO over units)")
+        table = compare_pooling(fleet, spec, result.fits, seed=args.seed)
+        write_text_atomic(Path(args.out) / "pooling_loo.csv", table.to_csv(float_format="%.6g"))
+        print(table.to_string(float_format=lambda v: f"{v:.2f}"))
+    if args.report:
+        from bayescal.fleet.report import write_fleet_report
+
+        write_fleet_report(result, Path(args.out) / "fleet_report.html")
+    print(result.hyperparameters().to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    for warning in result.warnings:
+        print(f"bayescal: warning: {warning}", file=sys.stderr)
+    print(f"wrote {args.out}/: fleet.nc, summary.csv, hyperparameters.csv, units.csv, summary.json, cameras/")
+    if not result.ok:
+        print("bayescal: FLEET FIT FAILED: " + "; ".join(result.problems), file=sys.stderr)
+        return 3
+    return 0
+
+
+def cmd_fleet_query(args) -> int:
+    import numpy as np
+
+    from bayescal.fleet import FleetFit
+    from bayescal.fleet.export import write_calibration
+
+    fleet = FleetFit.load(args.fleet)
+    camera = None if args.new_camera else args.camera
+    values = fleet.at(camera, args.date, seed=args.seed)
+    label = camera or "a new camera of the type"
+    print(f"{label} at {args.date or 'its last campaign'}:")
+    for k, kind in enumerate(fleet.kinds):
+        for c, ch in enumerate(fleet.channels):
+            v = np.exp(values[:, k, c]) if kind == "log_gain" else values[:, k, c]
+            lo, med, hi = np.quantile(v, [0.025, 0.5, 0.975])
+            name = "gain A1" if kind == "log_gain" else ("offset A0" if kind == "offset" else kind)
+            print(f"  {ch} {name}: {med:.6g} [{lo:.6g}, {hi:.6g}]")
+    if args.drift_percent is not None:
+        if camera is None or args.date is None:
+            from bayescal.errors import SpecError
+
+            raise SpecError("--drift-percent needs --camera and --date")
+        p = fleet.drift_probability(camera, args.date, args.drift_percent, seed=args.seed)
+        print(f"P(gain drifted by more than {args.drift_percent:g} % by {args.date}) = {p:.3f}")
+        when = fleet.recalibration_date(camera, args.drift_percent, args.probability)
+        print(
+            f"recalibrate by {when.date().isoformat()} (risk {args.probability:g} of a {args.drift_percent:g} % drift)"
+            if when is not None
+            else f"the risk stays below {args.probability:g} for 10 years"
+        )
+    if args.calibration:
+        write_calibration(args.fleet, args.calibration, camera, args.date, seed=args.seed)
+        print(f"wrote {args.calibration}/ (predict, invert and plan read it)")
+    return 0
+
+
+def cmd_fleet_simulate(args) -> int:
+    import dataclasses
+    import tomllib
+
+    from bayescal.errors import SpecError
+    from bayescal.io.files import read_text, write_text_atomic
+    from bayescal.validation.fleet import FleetDesign, simulate_fleet
+
+    text = read_text(args.design, SpecError, "fleet design (TOML)")
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{args.design} is not valid TOML: {exc}") from None
+    fields = {f.name: f for f in dataclasses.fields(FleetDesign) if f.name != "camera"}
+    for key, value in raw.items():
+        if key not in fields:
+            raise SpecError(f"{args.design}: unknown key '{key}'; expected one of {', '.join(fields)}")
+        if key == "absent":
+            raw[key] = tuple(tuple(v) for v in value)
+        elif isinstance(value, list):
+            raw[key] = tuple(value)
+    try:
+        design = FleetDesign(**raw)
+    except TypeError as exc:
+        raise SpecError(f"{args.design}: {exc}") from None
+    if design.n_cameras < 2:
+        raise SpecError(f"{args.design}: n_cameras = {design.n_cameras}; a fleet needs at least 2")
+    table, truth = simulate_fleet(design, seed=args.seed)
+    write_text_atomic(args.out, table.to_csv(index=False, float_format="%.10g"))
+    if args.truth:
+        write_text_atomic(args.truth, truth.to_csv(index=False, float_format="%.10g"))
+    print(f"wrote {len(table)} rows ({design.n_cameras} cameras, {len(design.campaigns)} campaigns) to {args.out}")
+    return 0

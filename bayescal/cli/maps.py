@@ -1,0 +1,73 @@
+"""The ``maps`` verb: per-pixel maps from frame stacks."""
+
+from __future__ import annotations
+
+
+def cmd_maps(args) -> int:
+    from bayescal.cli.progress import progress_bar, stage_reporter
+    from bayescal.io.files import check_output_dir
+    from bayescal.maps.build import build_maps
+    from bayescal.maps.metadata import channel_attrs
+    from bayescal.maps.model import DEFECT_CODES
+    from bayescal.maps.stacks import load_manifest
+    from bayescal.maps.store import make_maps, read_maps, write_maps
+
+    check_output_dir(args.out)
+    stage = stage_reporter(args.quiet)
+    manifest = load_manifest(args.stacks)
+    client = None
+    if args.scheduler:
+        from distributed import Client
+
+        client = Client(args.scheduler)
+        stage(f"using the dask scheduler at {args.scheduler}")
+    try:
+        h, w = manifest.shape
+        stage(
+            f"{len(manifest.stacks)} stacks of {h} x {w} pixels ({manifest.bytes / 1e9:.2f} GB); fitting the population"
+        )
+
+        def population(ds) -> None:
+            for channel in ds.attrs["channels"]:
+                a = channel_attrs(ds, channel)
+                spread = ", ".join(f"{n} {a[f'spread_{n}']:.4g} +- {a[f'spread_{n}_se']:.2g}" for n in a["parameters"])
+                stage(f"channel {channel}: spreads {spread}; defect fraction {a['population_weights'][1]:.2e}")
+            stage("writing the maps")
+
+        kw = dict(
+            fit_pixels=args.fit_pixels,
+            rows_per_chunk=args.rows_per_chunk,
+            calibration=args.calibration,
+            cfa=args.cfa,
+            channel=args.channel,
+        )
+        with progress_bar(1, "row blocks", quiet=args.quiet) as tick:
+            advance = tick if tick is None else (lambda done, total: tick(done, total))
+
+            if args.netcdf:
+                ds = build_maps(manifest, **kw)
+                population(ds)
+                write_maps(ds, args.out, netcdf=True, progress=advance)
+                maps = read_maps(args.out)
+            else:
+                maps = make_maps(manifest, args.out, **kw, progress=advance, processes=True, stage=population)
+    finally:
+        if client is not None:
+            client.close()
+    if args.report:
+        from bayescal.maps.report import maps_report
+
+        stage("writing the report")
+        maps_report(maps, args.out)
+    defect = maps["defect"].to_numpy()
+    counts = {name: int((defect == code).sum()) for code, name in DEFECT_CODES.items() if code}
+    spreads = "; ".join(
+        f"{c}: PRNU {channel_attrs(maps, c)['spread_relative_gain']:.3%}, "
+        f"offset spread {channel_attrs(maps, c)['spread_offset_dn']:.3g} DN"
+        for c in maps.attrs["channels"]
+    )
+    print(
+        f"maps of {defect.size} pixels written to {args.out}/: {spreads}; defects: "
+        + ", ".join(f"{v} {k}" for k, v in counts.items())
+    )
+    return 0

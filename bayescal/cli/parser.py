@@ -1,0 +1,242 @@
+"""The ``bayescal`` command's arguments: every verb, its options and their help; the argument types."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from bayescal.cli.calibrate import cmd_demo, cmd_fit, cmd_report, cmd_sbc, cmd_select, cmd_simulate
+from bayescal.cli.characterize import cmd_characterize
+from bayescal.cli.fleet import cmd_fleet, cmd_fleet_query, cmd_fleet_simulate
+from bayescal.cli.maps import cmd_maps
+from bayescal.cli.products import cmd_invert, cmd_plan, cmd_predict, cmd_scene
+from bayescal.inference import registry as backends
+
+SEED_HELP = "seed of every random number (default 0): the same seed gives the same result"
+
+
+def build() -> argparse.ArgumentParser:
+    """The argument parser of every verb (each calls its ``cmd_*`` function with the parsed arguments)."""
+    from bayescal import __version__
+
+    p = argparse.ArgumentParser(
+        prog="bayescal",
+        description="Bayesian radiometric calibration of imaging sensors",
+        epilog="exit codes: 0 ok, 2 bad input (names the file, row, column or key), "
+        "3 the fit failed its diagnostics or does not fit its data, 130 interrupted",
+    )
+    p.add_argument("--version", action="version", version=f"bayescal {__version__}")
+    sub = p.add_subparsers(required=True, metavar="COMMAND")
+    f = sub.add_parser("fit", help="fit a calibration model to a measurement table")
+    f.add_argument("data", help="CSV or Parquet measurement table")
+    f.add_argument("--model", required=True, help="model spec (TOML), e.g. models/seed000_bayer.toml")
+    f.add_argument(
+        "--backend",
+        default="nuts",
+        choices=backends.names(baseline=True),
+        help="inference backend (default nuts)",
+    )
+    f.add_argument("--out", required=True, help="output directory")
+    f.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    f.add_argument("--quiet", action="store_true", help="no progress bar")
+    f.add_argument("--report", action="store_true", help="also write OUT/report.html (+ .json, .md)")
+    f.set_defaults(func=cmd_fit)
+    pr = sub.add_parser("predict", help="posterior predictive DN at a (possibly unmeasured) setting")
+    pr.add_argument("posterior", help="fit directory or its posterior.nc")
+    setting_args(pr, required=True)
+    pr.add_argument("--radiance", "--stimulus", dest="stimulus", type=floats, help="stimulus values (comma list)")
+    pr.add_argument("--channel", action="append", help="channel(s) (default all)")
+    pr.add_argument("--n-avg", type=finite, default=1.0, help="pixels x frames averaged per reading (default 1)")
+    pr.add_argument("--out", help="also write the table as CSV")
+    pr.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    pr.set_defaults(func=cmd_predict)
+    iv = sub.add_parser("invert", help="radiance posterior of DN values or an image (median and 95 %% interval)")
+    iv.add_argument("posterior", help="fit directory or its posterior.nc")
+    iv.add_argument("image", nargs="?", help="TIFF, PNG or NPY image")
+    iv.add_argument("--dn", type=floats, help="DN values instead of an image (comma list)")
+    setting_args(iv, required=False)
+    image_args(iv, channel_help="channel of a single-channel image or of --dn values")
+    iv.add_argument("--out", help="output directory (image) or CSV (--dn)")
+    iv.add_argument(
+        "--maps",
+        help="per-pixel maps directory (from `bayescal maps`): correct every pixel before inverting",
+    )
+    iv.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    iv.set_defaults(func=cmd_invert)
+    mp = sub.add_parser(
+        "maps", help="per-pixel relative gain, offset, dark current and defect maps from flat and dark frame stacks"
+    )
+    mp.add_argument("stacks", help="directory with conditions.csv and one .npy/.tif/.raw file per stack")
+    mp.add_argument("--out", required=True, help="output directory (holds maps.zarr, or maps.nc with --netcdf)")
+    mp.add_argument("--calibration", help="channel-level fit directory the maps are relative to (provenance)")
+    mp.add_argument("--netcdf", action="store_true", help="write NetCDF (maps.nc) instead of zarr")
+    mp.add_argument(
+        "--cfa", help="Bayer pattern of raw mosaic frames (RGGB, BGGR, GRBG, GBRG): one population per colour"
+    )
+    mp.add_argument("--channel", default="M", help="channel name of a monochrome sensor (default M)")
+    mp.add_argument(
+        "--fit-pixels", type=int, default=262_144, help="pixels used to fit the population (default 262144)"
+    )
+    mp.add_argument("--rows-per-chunk", type=int, default=None, help="rows per block (default: ~48 MB per block)")
+    mp.add_argument(
+        "--scheduler", help="address of a dask.distributed scheduler (e.g. tcp://host:8786); default: this machine"
+    )
+    mp.add_argument("--report", action="store_true", help="also write OUT/maps_report.html (+ .md)")
+    mp.add_argument("--quiet", action="store_true", help="no progress bar or stage messages")
+    mp.set_defaults(func=cmd_maps)
+    pl = sub.add_parser("plan", help="choose gain/exposure/TDI so the next frame lands in a DN window")
+    pl.add_argument("posterior", help="fit directory or its posterior.nc")
+    pl.add_argument("--channel", required=True, help="channel the reading (or the scene) is of")
+    pl.add_argument("--dn", type=finite, help="reading at the current setting")
+    pl.add_argument("--current", type=setting_values, help="current setting: EXPOSURE_S[,GAIN[,TDI[,TEMPERATURE_C]]]")
+    pl.add_argument("--radiance", "--stimulus", dest="stimulus", type=finite, help="known scene stimulus instead")
+    pl.add_argument("--exposures", type=floats, required=True, help="allowed exposures, s (comma list)")
+    pl.add_argument("--gains", type=floats, default=[1.0], help="allowed gains (comma list)")
+    pl.add_argument("--tdi-stages", type=floats, default=[1.0], help="allowed TDI stages (comma list)")
+    pl.add_argument("--window", type=floats, help="target DN window LOW,HIGH (default 1080,1920 scaled to bits)")
+    pl.add_argument("--n-avg", type=finite, default=1.0, help="pixels x frames averaged per reading (default 1)")
+    pl.add_argument("--top", type=int, default=5, help="rows to print")
+    pl.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    pl.set_defaults(func=cmd_plan)
+    rp = sub.add_parser("report", help="HTML report (figures embedded) + report.json + report.md of a fit")
+    rp.add_argument("fit_dir", help="directory written by `bayescal fit`")
+    rp.add_argument("--out", help="HTML path (default FIT_DIR/report.html); .json and .md go beside it")
+    rp.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    rp.set_defaults(func=cmd_report)
+    ch = sub.add_parser("characterize", help="EMVA 1288: standard estimates beside posteriors (K, R, QE, dark, ...)")
+    ch.add_argument("input", help="EMVA 1288 descriptor (.txt) with its images, crop128.npz, or a reduced steps.csv")
+    ch.add_argument("--out", required=True, help="output directory")
+    ch.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    ch.set_defaults(func=cmd_characterize)
+    se = sub.add_parser("select", help="compare polynomial orders / components by PSIS-LOO (F-test beside it)")
+    se.add_argument("data", help="CSV or Parquet measurement table")
+    se.add_argument("--model", required=True, help="base model spec (TOML)")
+    se.add_argument("--orders", type=orders, default=[1, 2, 3], help="response orders 1-4 to compare (default 1,2,3)")
+    se.add_argument("--without", default="", help="components to try switching off: level_errors,excess,exposure_slope")
+    se.add_argument("--backend", default="laplace", choices=backends.names(), help="backend (default laplace)")
+    se.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    se.add_argument(
+        "--pooling",
+        action="store_true",
+        help="a fleet table (camera column): compare no / partial / complete pooling by PSIS-LOO over units",
+    )
+    se.set_defaults(func=cmd_select)
+    sc = sub.add_parser("scene", help="cheapest calibration whose inversion of an image matches the full model's")
+    sc.add_argument("image", help="TIFF, PNG or NPY image (the scene)")
+    sc.add_argument("posteriors", nargs="+", help="fit directories (or posterior.nc) of the candidate models")
+    setting_args(sc, required=False)
+    image_args(sc, channel_help="channel of a single-channel image")
+    sc.add_argument("--full", help="the reference candidate (default: the highest response order)")
+    sc.add_argument("--tol", type=finite, default=0.1, help="allowed deviation in posterior sds (default 0.1)")
+    sc.add_argument("--out", help="write the comparison as JSON here")
+    sc.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    sc.set_defaults(func=cmd_scene)
+    sb = sub.add_parser("sbc", help="simulation-based calibration of a model over a table's design (rank tests)")
+    sb.add_argument("data", help="CSV or Parquet table: its design (settings, levels) is used, not its readings")
+    sb.add_argument("--model", required=True, help="model spec (TOML); its priors generate the datasets")
+    sb.add_argument("--sims", type=int, default=200, help="simulated datasets (default 200)")
+    sb.add_argument("--backend", default="nuts", choices=backends.names(), help="backend of the refits (default nuts)")
+    sb.add_argument("--out", required=True, help="output stem: writes STEM.csv, STEM.md, STEM.png")
+    sb.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    sb.set_defaults(func=cmd_sbc)
+    s = sub.add_parser("simulate", help="simulate a measurement table from a design with a [truth] table")
+    s.add_argument("--design", required=True, help="design TOML (names its spec, holds [truth])")
+    s.add_argument("--model", help="model spec (default: the design's)")
+    s.add_argument("--out", required=True, help="CSV to write")
+    s.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    s.set_defaults(func=cmd_simulate)
+    fl = sub.add_parser("fleet", help="calibrate a fleet of cameras over campaigns: each alone, then the hierarchy")
+    fl.add_argument(
+        "data", help="CSV or Parquet measurement table with 'camera' and optional 'campaign' (date) columns"
+    )
+    fl.add_argument("--model", required=True, help="model spec (TOML) of one camera, with an optional [fleet] section")
+    fl.add_argument("--out", required=True, help="output directory (fleet posterior, summaries, per-camera fits)")
+    fl.add_argument(
+        "--backend", default="laplace", choices=("laplace", "nuts"), help="stage one's backend (default laplace)"
+    )
+    fl.add_argument("--pooling", choices=("partial", "none", "complete"), help="override the spec's [fleet] pooling")
+    fl.add_argument(
+        "--compare-pooling", action="store_true", help="also compare no/partial/complete pooling by PSIS-LOO"
+    )
+    fl.add_argument("--report", action="store_true", help="also write OUT/fleet_report.html")
+    fl.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    fl.add_argument("--quiet", action="store_true", help="no progress bar")
+    fl.set_defaults(func=cmd_fleet)
+    fq = sub.add_parser("fleet-query", help="a fleet camera at a date, its drift probability, its calibration")
+    fq.add_argument("fleet", help="directory written by `bayescal fleet`")
+    who = fq.add_mutually_exclusive_group(required=True)
+    who.add_argument("--camera", help="camera name (as in the table's camera column)")
+    who.add_argument("--new-camera", action="store_true", help="a camera of the type never measured")
+    fq.add_argument("--date", help="ISO date (default: the camera's last campaign)")
+    fq.add_argument("--drift-percent", type=finite, help="P(|gain change since the last campaign| > this %%) at --date")
+    fq.add_argument("--probability", type=finite, default=0.05, help="risk for the recalibration date (default 0.05)")
+    fq.add_argument("--calibration", help="write this fit directory (for predict, invert, plan)")
+    fq.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    fq.set_defaults(func=cmd_fleet_query)
+    fs = sub.add_parser("fleet-simulate", help="simulate a fleet's campaigns (independent simulator) from a design")
+    fs.add_argument("design", help="fleet design TOML, e.g. models/fleet_seed000_design.toml")
+    fs.add_argument("--out", required=True, help="measurement table CSV to write")
+    fs.add_argument("--truth", help="also write the true coefficients per unit to this CSV")
+    fs.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    fs.set_defaults(func=cmd_fleet_simulate)
+    d = sub.add_parser("demo", help="simulate the seed 000 camera, fit it, compare with least squares")
+    d.add_argument("--out", default="demo-out", help="output directory (default demo-out)")
+    d.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    d.add_argument("--backend", default="nuts", choices=backends.names(), help="backend (default nuts)")
+    d.add_argument("--quiet", action="store_true", help="no progress bar")
+    d.set_defaults(func=cmd_demo)
+    return p
+
+
+def finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
+    return value
+
+
+def setting_values(text: str) -> list[float]:
+    values = floats(text)
+    if not 1 <= len(values) <= 4:
+        raise argparse.ArgumentTypeError(
+            f"expected EXPOSURE_S[,GAIN[,TDI[,TEMPERATURE_C]]] (1 to 4 numbers), got {len(values)}: '{text}'"
+        )
+    return values
+
+
+def orders(text: str) -> list[int]:
+    out = []
+    for v in text.split(","):
+        v = v.strip()
+        if v not in {"1", "2", "3", "4"}:
+            raise argparse.ArgumentTypeError(f"expected response orders among 1,2,3,4 (comma list), got '{v}'")
+        out.append(int(v))
+    return out
+
+
+def floats(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got '{text}'") from None
+    if not values or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers, got '{text}'")
+    return values
+
+
+def setting_args(p: argparse.ArgumentParser, required: bool) -> None:
+    p.add_argument("--exposure-s", type=finite, required=required, help="exposure time, s")
+    p.add_argument("--gain", type=finite, default=None, help="gain factor (default the reference gain)")
+    p.add_argument("--tdi-stages", type=finite, default=None, help="TDI stages (default the reference)")
+    p.add_argument("--temperature-c", type=finite, default=None, help="sensor temperature, degC (default reference)")
+
+
+def image_args(p, channel_help: str) -> None:
+    """How an image's pixels map to channels, and how many readings each value averages."""
+    p.add_argument("--cfa", help="Bayer pattern of a raw mosaic: RGGB, BGGR, GRBG, GBRG")
+    p.add_argument("--channel", help=channel_help)
+    p.add_argument("--channels", help="comma list naming the planes of an (H, W, C) image")
+    p.add_argument("--n-avg", type=finite, default=1.0, help="pixels x frames averaged per value (default 1)")
