@@ -20,8 +20,11 @@ import jax, jax.numpy as jnp
 import bayescal as bc
 state = lambda: [jax.config.jax_enable_x64, jax.config.jax_compilation_cache_dir, str(jnp.ones(2).dtype)]
 before = state()
+import dataclasses
 spec = bc.load_spec({str(MODELS / "seed000_bayer.toml")!r})
 design = bc.load_design({str(MODELS / "seed000_design.toml")!r})
+dark = dataclasses.replace(design.dark[0], gain=(1.0,))  # one channel, one gain: a small program to compile
+design = dataclasses.replace(design, channels=("G",), illuminated=design.illuminated[:1], dark=(dark,))
 table = bc.simulate(spec, design, seed=1).table
 with warnings.catch_warnings():
     warnings.simplefilter("ignore")

@@ -43,10 +43,10 @@ def test_bench_does_not_import_the_model():
 
 
 def test_gain_steps_off_nominal_are_covered(spec):
-    """Gain steps within +-8 % of their labels: 8 datasets, 48 coefficient intervals, at most one fit flagged.
-    At nominal 95 % coverage P(hits < 40 of 48) ~ 3e-3 (binomial; the channels of a dataset share its sphere)."""
+    """Gain steps within +-8 % of their labels: 6 datasets, 36 coefficient intervals, at most one fit flagged.
+    At nominal 95 % coverage P(hits < 30 of 36) ~ 2e-3 (binomial; the channels of a dataset share its sphere)."""
     hits, flagged = [], 0
-    for seed in range(8):
+    for seed in range(6):
         frame, real = simulate_bench(departures=Departures(gain_step_error=0.08), seed=500 + seed)
         fit = _fit(spec, frame, seed)
         flagged += not fit.ok
@@ -55,7 +55,7 @@ def test_gain_steps_off_nominal_are_covered(spec):
             lo, hi = np.quantile(rel[:, ci, :2], [0.025, 0.975], axis=0)
             t = real.true_coefficients(c, relative=True)[:2]
             hits += list((lo <= t) & (t <= hi))
-    assert flagged <= 1 and np.sum(hits) >= 40, (flagged, np.mean(hits))
+    assert flagged <= 1 and np.sum(hits) >= 30, (flagged, np.mean(hits))
 
 
 def test_everything_at_once_is_flagged(spec):
@@ -92,27 +92,27 @@ def test_seed000_table2_departure_is_predicted(spec):
 
 def test_held_out_exposures_cover_at_the_nominal_rate(spec):
     """Cameras whose 1/100 s exposure is off by a factor drawn with the papers' spread (sd 5 %), calibrated
-    without it: 16 cameras x 3 channels x 2 radiances.  At nominal 95 % coverage P(hits < 80 of 96) < 1e-3."""
+    without it: 12 cameras x 3 channels x 2 radiances.  At nominal 95 % coverage P(hits < 60 of 72) < 1e-3."""
     camera = with_held_out(BenchCamera(), exposures=(0.01,))
     rng = np.random.default_rng(2024)
     hits = []
-    for seed in range(16):
+    for seed in range(12):
         dep = Departures(exposure_factor=((0.01, float(np.exp(0.05 * rng.standard_normal()))),))
         frame, real = simulate_bench(camera, dep, seed=1300 + seed)
         cal = bc.Calibration.from_fit(_fit(spec, frame, seed))
         p = bc.predict(cal, [6.0, 18.0], bc.Setting(0.01), n_avg=camera.n_frames * camera.n_pixels, seed=seed)
         for r in p.itertuples():
             hits.append(r.pi_lo <= real.read(r.channel, r.stimulus, 0.01, 1.0, rng) <= r.pi_hi)
-    assert np.mean(hits) >= 80 / 96, np.mean(hits)
+    assert np.mean(hits) >= 60 / 72, np.mean(hits)
 
 
 def test_dark_drift_is_covered_when_time_is_recorded(spec):
     """A dark level drifting by 3 DN over the run biases A0 (it is taken from dark frames measured last):
-    6 datasets, coverage of A0 and A1 below 0.3 without the drift component.  With ``dark.drift`` and the
+    4 datasets, coverage of A0 and A1 below 0.3 without the drift component.  With ``dark.drift`` and the
     bench's ``time_s`` column the drift is fitted (3.2 [2.4, 4.0] DN on the first dataset) and the
-    coefficients cover: >= 30 of 36 hits required (P ~ 3e-3 at nominal 95 %)."""
+    coefficients cover: >= 20 of 24 hits required (P ~ 8e-3 at nominal 95 %)."""
     hits = {False: [], True: []}
-    for seed in range(6):
+    for seed in range(4):
         frame, real = simulate_bench(departures=Departures(dark_drift_dn=3.0), seed=10_000 + seed)
         for drift in (False, True):
             fit = _fit(spec.replace(dark={"drift": drift}), frame, seed)
@@ -121,7 +121,7 @@ def test_dark_drift_is_covered_when_time_is_recorded(spec):
                 lo, hi = np.quantile(rel[:, ci, :2], [0.025, 0.975], axis=0)
                 t = real.true_coefficients(c, relative=True)[:2]
                 hits[drift] += list((lo <= t) & (t <= hi))
-    assert np.mean(hits[False]) < 0.3 and np.sum(hits[True]) >= 30, {k: np.mean(v) for k, v in hits.items()}
+    assert np.mean(hits[False]) < 0.3 and np.sum(hits[True]) >= 20, {k: np.mean(v) for k, v in hits.items()}
 
 
 def test_drift_needs_a_time_column(spec):
@@ -197,11 +197,11 @@ def test_clip_window_likelihood_closed_form(float64):
 
 def test_prnu_with_partial_clipping_is_covered(spec):
     """A 3 % PRNU (the spec's clipping model assumes 1 %): with the clipping loss of the near-full-scale rows
-    bracketed (``saturation.partial = "window"``) the A0/A1 intervals cover.  8 datasets, 48 intervals:
-    >= 40 hits (P ~ 3e-3 at nominal 95 %); the benchmark (100 datasets) measures the rate (README)."""
+    bracketed (``saturation.partial = "window"``) the A0/A1 intervals cover.  6 datasets, 36 intervals:
+    >= 30 hits (P ~ 2e-3 at nominal 95 %); the benchmark (100 datasets) measures the rate (README)."""
     camera = with_held_out(BenchCamera(), exposures=(0.01,))
     hits = []
-    for seed in range(8):
+    for seed in range(6):
         frame, real = simulate_bench(camera, Departures(prnu=0.03), seed=40_000 + seed)
         fit = _fit(spec, frame, seed)
         rel = fit.draws("A_rel")
@@ -209,7 +209,7 @@ def test_prnu_with_partial_clipping_is_covered(spec):
             lo, hi = np.quantile(rel[:, ci, :2], [0.025, 0.975], axis=0)
             t = real.true_coefficients(c, relative=True)[:2]
             hits += list((lo <= t) & (t <= hi))
-    assert np.sum(hits) >= 40, np.mean(hits)
+    assert np.sum(hits) >= 30, np.mean(hits)
 
 
 @pytest.mark.parametrize("factor", [1.066, 0.912])

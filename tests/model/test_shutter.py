@@ -37,16 +37,17 @@ def test_off_unless_asked_for(spec):
 
 
 def test_the_offset_is_recovered_and_an_unmeasured_exposure_predicted(spec):
-    """Calibrated at 4 and 10 ms only, 8 bench cameras x 3 channels x 2 radiances read at 8 ms: the shutter
-    model's 95 % predictive intervals hold the bench's readings (>= 40 of 48; P ~ 3e-3 at the nominal rate)
-    and are narrower than those of exposures taken as free factors; its offset interval covers 0.3 ms."""
+    """Calibrated at 4 and 10 ms only, 6 bench cameras x 3 channels x 2 radiances read at 8 ms: the shutter
+    model's 95 % predictive intervals hold the bench's readings (>= 30 of 36; P ~ 2e-3 at the nominal rate)
+    and, on the first three cameras, are narrower than those of exposures taken as free factors; its offset
+    interval covers 0.3 ms (>= 4 of 6; P ~ 2e-3)."""
     camera = with_held_out(BenchCamera(), exposures=(0.008,))
     shutter = spec.replace(shutter={"enabled": True}, settings={"exposure_tolerance": 0.0})
     rng = np.random.default_rng(5)
     hits, offset_hits, widths = [], 0, {True: [], False: []}
-    for seed in range(8):
+    for seed in range(6):
         frame, real = simulate_bench(camera, Departures(shutter_offset_s=OFFSET_S), seed=2100 + seed)
-        for model_shutter, s in ((True, shutter), (False, spec)):
+        for model_shutter, s in ((True, shutter), (False, spec))[: 2 if seed < 3 else 1]:
             fit = _fit(s, frame, seed)
             assert fit.ok, fit.diagnostics.verdict
             cal = bc.Calibration.from_fit(fit)
@@ -59,8 +60,8 @@ def test_the_offset_is_recovered_and_an_unmeasured_exposure_predicted(spec):
                     hits.append(
                         r.pi_lo <= real.read(r.channel, r.stimulus * real.sphere_scale, 0.008, 1.0, rng) <= r.pi_hi
                     )
-    assert np.sum(hits) >= 40, np.mean(hits)
-    assert offset_hits >= 6, offset_hits
+    assert np.sum(hits) >= 30, np.mean(hits)
+    assert offset_hits >= 4, offset_hits
     assert np.median(widths[True]) < 0.5 * np.median(widths[False]), {k: np.median(v) for k, v in widths.items()}
 
 
