@@ -40,12 +40,13 @@ import pandas as pd
 from bayescal._config import computes
 from bayescal.errors import TableError
 from bayescal.io.emva import Steps
+from bayescal.model.components.noise import QUANTISATION_DN2
 
 __all__ = ["Characterization", "characterize", "standard_method", "plot_curves"]
 
 SENSITIVITY_FRACTION = 0.7
 LINEARITY_RANGE = (0.05, 0.95)
-QUANT = 1.0 / 12.0
+QUANT = QUANTISATION_DN2  # the standard's quantisation variance, 1/12 DN^2
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ from scipy import stats as sstats
 
 from bayescal._config import computes
 from bayescal.errors import TableError
+from bayescal.model.components.dark import Dark
 from bayescal.model.components.noise import Noise
 
 __all__ = ["MapSet", "SensorMaps", "apply_maps", "noise_model"]
@@ -95,7 +96,7 @@ class MapSet:
         """Dark current at ``temperature_c`` relative to the maps' (1 without a temperature term or temperature)."""
         if temperature_c is None or not np.isfinite(self.doubling_c):
             return 1.0
-        return float(np.exp2((temperature_c - self.temperature_ref_c) / self.doubling_c))
+        return float(Dark.doubling(temperature_c - self.temperature_ref_c, self.doubling_c))
 
     def at_exposure(self, t: float, temperature_c: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Dark level ``o + D t'`` and map variance ``var(o) + t'^2 var(D) + 2 t' cov`` with ``t' = t k(T)``

@@ -26,6 +26,7 @@ from bayescal.maps.population import (
     spread_uncertainty,
 )
 from bayescal.maps.stacks import Manifest, block_statistics
+from bayescal.model.components.dark import Dark
 
 __all__ = ["MapModel", "SensorModel", "DEFECT_CODES", "fit_map_model", "block_maps"]
 
@@ -283,8 +284,8 @@ def _design(exposures, flat_signal, var, thermal: dict | None) -> LinearDesign:
 
 
 def doubling_factor(temperature_c, temperature_ref_c: float, doubling_c: float):
-    """``2^((T - T_ref) / T_d)``: the dark current at ``T`` relative to ``T_ref``."""
-    return np.exp2((np.asarray(temperature_c, float) - temperature_ref_c) / doubling_c)
+    """``2^((T - T_ref) / T_d)``: the dark current at ``T`` relative to ``T_ref`` (the dark component's law)."""
+    return Dark.doubling(np.asarray(temperature_c, float) - temperature_ref_c, doubling_c)
 
 
 def _thermal(table, exposures, flat_signal, var, means) -> dict | None:

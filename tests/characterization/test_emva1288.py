@@ -76,7 +76,7 @@ def test_posteriors_have_intervals_and_dark_currents_are_compared(full):
 
 def test_posteriors_cover_simulated_sensors():
     """40 simulated linear sensors (K 0.28 DN/e-, QE 45 %, sigma_d 11 e-): 95 % intervals cover the truth."""
-    from bayescal.io.emva import simulate_steps
+    from bayescal.characterization.simulate import simulate_steps
 
     hits: dict = {"K": [], "QE": [], "sigma_y_dark": [], "sigma_d": []}
     electrons = 11**2 + 30 * 0.011 / 50  # read noise^2 + dark shot at the first (shortest) step
@@ -102,7 +102,7 @@ def test_k_and_qe_cover_on_nonlinear_sensors():
     origin covered the cubic sensors but only 0.35 of the quintic ones.  Measured with the quartic over 60
     sensors per shape: 0.93-0.97 (linear sensors 0.95 / 0.93).  80 intervals per quantity, >= 68 hits required
     (P ~ 2e-3 at a true 0.93)."""
-    from bayescal.io.emva import simulate_steps
+    from bayescal.characterization.simulate import simulate_steps
 
     hits: dict = {"K": 0, "QE": 0}
     for seed in range(20):
@@ -170,7 +170,7 @@ def test_illumination_sweep_layout_and_undetermined_dark_current():
     determined (no number, no interval) rather than as a fit through one point."""
     import dataclasses
 
-    from bayescal.io.emva import simulate_steps
+    from bayescal.characterization.simulate import simulate_steps
 
     sweep = simulate_steps(seed=4)
     t0 = float(sweep.bright["texp_s"].iloc[-1])
@@ -208,7 +208,7 @@ def test_implausible_characterisation_is_reported(tmp_path):
     plausible sensor has no problems."""
     import dataclasses
 
-    from bayescal.io.emva import simulate_steps
+    from bayescal.characterization.simulate import simulate_steps
 
     steps = simulate_steps(seed=3)
     assert characterize(steps).problems == []
