@@ -366,11 +366,16 @@ class Calibration:
             ratio = ratio * term.factor(channel, setting, self.n_draws)
         return ratio
 
-    def expected_dn(self, channel: str, stimulus, setting: Setting, relative: bool = False) -> np.ndarray:
-        """Expected DN (before clipping) per draw: ``(S,) + shape(stimulus)``."""
+    def expected_dn(
+        self, channel: str, stimulus, setting: Setting, relative: bool = False, per_draw: bool = False
+    ) -> np.ndarray:
+        """Expected DN (before clipping) per draw: ``(S,) + shape(stimulus)``; with ``per_draw`` the stimulus
+        already has the draws on its first axis (e.g. a sphere level's reading times that draw's level error)."""
         stimulus = np.asarray(stimulus, dtype=float)
-        x = stimulus[None, ...] * self.ratio(setting, channel).reshape((-1,) + (1,) * stimulus.ndim)
-        dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * stimulus.ndim)
+        if not per_draw:
+            stimulus = stimulus[None, ...]
+        x = stimulus * self.ratio(setting, channel).reshape((-1,) + (1,) * (stimulus.ndim - 1))
+        dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * (stimulus.ndim - 1))
         return dark + self.signal_dn(channel, x, relative)
 
     def sample_dn(
@@ -382,9 +387,11 @@ class Calibration:
         n_avg: float = 1.0,
         prnu: float = 0.0,
         relative: bool = False,
+        per_draw: bool = False,
     ) -> np.ndarray:
-        """Posterior predictive readings (one per draw), clipped to ``[0, full scale]``."""
-        mean = self.expected_dn(channel, stimulus, setting, relative)
+        """Posterior predictive readings (one per draw), clipped to ``[0, full scale]`` (``per_draw``: see
+        :meth:`expected_dn`)."""
+        mean = self.expected_dn(channel, stimulus, setting, relative, per_draw)
         dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * (mean.ndim - 1))
         sd = np.sqrt(self.noise_var(mean - dark, setting, n_avg, prnu))
         return Saturation.adc(mean + sd * rng.standard_normal(mean.shape), self.full_scale)

@@ -30,7 +30,7 @@ import pandas as pd
 from bayescal.errors import PosteriorError
 from bayescal.io.files import write_json_atomic, write_text_atomic
 from bayescal.model import kinds
-from bayescal.model.components import Saturation
+from bayescal.model.components import Saturation, Sphere
 from bayescal.posterior.calibration import Calibration, Setting
 from bayescal.prediction.invert import invert, radiance_draws
 from bayescal.prediction.readings import predict
@@ -109,7 +109,7 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
     examples = _examples(cal, seed)
     figures = {
         "response": _fig_response(cal, frame, lsq),
-        "residuals": _fig_residuals(cal, frame),
+        "residuals": _fig_residuals(cal, frame, tree),
         "misfit": _fig_misfit(summary["diagnostics"].get("misfit"), summary["diagnostics"].get("holdout")),
         "budget": _fig_budget(budget),
     } | _fig_chains(tree, summary["backend"])
@@ -241,8 +241,21 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
     return _png(fig)
 
 
-def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
-    """Residuals in predictive sds (a band of +-2 is what the model allows), one colour per setting."""
+def _fig_residuals(cal: Calibration, frame: pd.DataFrame, tree) -> str:
+    """Residuals in predictive sds (a band of +-2 is what the model allows), one colour per setting.
+
+    Each row is predicted as the fit saw it: at its sphere level's reading times that level's fitted
+    error (per draw), so the residuals are the ones the misfit checks judge."""
+    import tomllib
+
+    prnu_bound = tomllib.loads(tree.attrs["spec_toml"]).get("saturation", {}).get("prnu_bound", 0.03)
+    hidden = 0
+    level_error, levels = None, {}
+    post = tree["posterior"]
+    if "level_error" in post:
+        err = np.asarray(post["level_error"])
+        level_error = err.reshape((-1,) + err.shape[2:])
+        levels = {str(v): i for i, v in enumerate(post["level"].values)}
     chans = list(cal.channels)
     fig, axes = subplots(1, len(chans), figsize=(4.6 * len(chans), 3.4), squeeze=False, sharey=True)
     rng = np.random.default_rng(1)
@@ -264,16 +277,39 @@ def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
             s = Setting(t, g, m)
             n_avg = (rows.get("n_frames", 1) * rows.get("n_pixels", 1)).to_numpy(dtype=float)
             stim = rows["stimulus"].to_numpy()
-            pred = cal.sample_dn(ch, stim, s, rng, n_avg=float(np.median(n_avg)), relative=True)
+            delivered = stim[None, :] * np.ones((cal.n_draws, 1))
+            if level_error is not None:
+                known = np.array([str(v) in levels for v in rows["level"]])
+                idx = np.array([levels.get(str(v), 0) for v in rows["level"]])
+                delivered = delivered * np.where(known, Sphere.factor(level_error[:, idx]), 1.0)
+            pred = cal.sample_dn(ch, delivered, s, rng, n_avg=float(np.median(n_avg)), relative=True, per_draw=True)
             z = (rows["dn_mean"].to_numpy() - np.median(pred, axis=0)) / np.std(pred, axis=0)
+            near = _partly_clipped(cal, ch, delivered, s, prnu_bound, np.std(pred, axis=0))
+            hidden += int(near.sum())
             label = f"{t:g} s, gain {g:g}" + (f", TDI {m:g}" if m != 1 else "")
-            ax.plot(stim, z, "o", ms=3.5, color=colours[k % len(colours)], label=label)
+            ax.plot(stim[~near], z[~near], "o", ms=3.5, color=colours[k % len(colours)], label=label)
         ax.set(title=f"channel {ch}", xlabel=f"{cal.stimulus} ({cal.unit})")
+    if hidden:
+        fig.suptitle(
+            f"{hidden} row(s) within reach of full scale left out: their partial clipping is bracketed by the fit's "
+            "likelihood, not predicted by a single reading",
+            fontsize=8,
+        )
     axes[0][0].set_ylabel("(data - model) / predictive sd")
     handles, labels = axes[0][0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.1, 1, 1))
     return _png(fig)
+
+
+def _partly_clipped(cal: Calibration, channel: str, stimulus, setting, prnu_bound: float, sd) -> np.ndarray:
+    """Rows whose pixels would partly clip: the clipping loss at a ``prnu_bound`` pixel spread exceeds half the
+    predictive sd (``stimulus`` per draw)."""
+    mean = np.median(cal.expected_dn(channel, stimulus, setting, relative=True, per_draw=True), axis=0)
+    signal = np.maximum(mean - np.median(cal.dark_dn(channel, setting)), 0.0)
+    pixel = np.median(cal.noise_var(signal[None, :], setting, 1.0), axis=0)
+    loss = mean - Saturation.clipped_mean(mean, np.sqrt(pixel + (prnu_bound * signal) ** 2), cal.full_scale)
+    return loss > 0.5 * sd
 
 
 def _fig_misfit(misfit: dict | None, holdout: dict | None = None) -> str:
@@ -327,7 +363,7 @@ def _fig_budget(budget: pd.DataFrame) -> str:
         left += budget[name].to_numpy()
     ax.set(xlabel="share of inverted-radiance variance", xlim=(0, 1))
     ax.invert_yaxis()
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)  # beside the bars
     return _png(fig)
 
 
