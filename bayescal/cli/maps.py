@@ -2,19 +2,63 @@
 
 from __future__ import annotations
 
+import contextlib
+import shutil
+import tempfile
+from pathlib import Path
+
 
 def cmd_maps(args) -> int:
-    from bayescal.cli.progress import progress_bar, stage_reporter
+    from bayescal.cli.progress import stage_reporter
     from bayescal.io.files import check_output_dir
-    from bayescal.maps.build import build_maps
-    from bayescal.maps.metadata import channel_attrs
-    from bayescal.maps.model import DEFECT_CODES
     from bayescal.maps.stacks import load_manifest
-    from bayescal.maps.store import make_maps, read_maps, write_maps
 
     check_output_dir(args.out)
     stage = stage_reporter(args.quiet)
-    manifest = load_manifest(args.stacks)
+    with _stack_directory(args, stage) as (directory, source):
+        return _maps(args, stage, load_manifest(directory, source=source))
+
+
+@contextlib.contextmanager
+def _stack_directory(args, stage):
+    """The stack directory to map: the argument itself, or an EMVA 1288 set written out as stacks.
+
+    A descriptor (``.txt``) or cropped arrays (``.npz``) are converted into a
+    hidden folder beside ``--out`` (visible to a cluster's workers when the
+    output is on a shared disk), removed afterwards, also on an interrupt.
+    """
+    from bayescal.cli.progress import progress_bar
+    from bayescal.errors import TableError
+    from bayescal.maps.stacks import write_emva_stacks
+
+    path = Path(args.stacks)
+    if path.is_dir() or not path.exists():
+        yield path, ""
+        return
+    if path.suffix.lower() not in (".txt", ".npz"):
+        raise TableError(
+            f"{path}: expected a stack directory (with conditions.csv), an EMVA 1288 descriptor (.txt) "
+            "or the cropped arrays (.npz)"
+        )
+    out = Path(args.out).resolve()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.emva-stacks-", dir=out.parent))
+    try:
+        stage(f"writing the EMVA 1288 image set {path} as stacks")
+        with progress_bar(1, "bright groups", quiet=args.quiet) as tick:
+            write_emva_stacks(path, staging, progress=tick)
+        yield staging, str(path.resolve())
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _maps(args, stage, manifest) -> int:
+    from bayescal.cli.progress import progress_bar
+    from bayescal.maps.build import build_maps
+    from bayescal.maps.metadata import channel_attrs
+    from bayescal.maps.model import DEFECT_CODES
+    from bayescal.maps.store import make_maps, read_maps, write_maps
+
     client = None
     if args.scheduler:
         from distributed import Client

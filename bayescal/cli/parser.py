@@ -66,7 +66,11 @@ def build() -> argparse.ArgumentParser:
     mp = sub.add_parser(
         "maps", help="per-pixel relative gain, offset, dark current and defect maps from flat and dark frame stacks"
     )
-    mp.add_argument("stacks", help="directory with conditions.csv and one .npy/.tif/.raw file per stack")
+    mp.add_argument(
+        "stacks",
+        help="directory with conditions.csv and one .npy/.tif/.raw file per stack, or an EMVA 1288 image set: "
+        "its descriptor (.txt, images beside it; exposure or illumination sweep) or cropped arrays (.npz)",
+    )
     mp.add_argument("--out", required=True, help="output directory (holds maps.zarr, or maps.nc with --netcdf)")
     mp.add_argument("--calibration", help="channel-level fit directory the maps are relative to (provenance)")
     mp.add_argument("--netcdf", action="store_true", help="write NetCDF (maps.nc) instead of zarr")

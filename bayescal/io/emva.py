@@ -15,8 +15,8 @@ Inputs: a descriptor (``n``, ``b``, ``d``, ``i`` lines) with its images, the
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +24,16 @@ import pandas as pd
 
 from bayescal.errors import TableError
 
-__all__ = ["Steps", "steps_of", "load_steps", "read_descriptor", "reduce_pair", "reduce_stack"]
+__all__ = [
+    "Steps",
+    "ImageGroup",
+    "steps_of",
+    "load_steps",
+    "read_groups",
+    "read_descriptor",
+    "reduce_pair",
+    "reduce_stack",
+]
 
 
 @dataclass(frozen=True)
@@ -94,9 +103,84 @@ def reduce_stack(frames, progress: Callable[[int], None] | None = None) -> dict:
     return {"mean_dn": float(mean.mean()), "spatial_var": spatial, "temporal_var": temporal, "n_images": n}
 
 
-def read_descriptor(path: str | os.PathLike, progress: Callable[[int], None] | None = None) -> Steps:
-    """Read an EMVA 1288 descriptor and reduce its images (pairs as pairs, longer groups as stacks)."""
+@dataclass(frozen=True)
+class ImageGroup:
+    """One bright or dark group of an EMVA 1288 set: a pair of images, or a longer stack.
+
+    Attributes
+    ----------
+    kind : {"bright", "dark"}
+    texp_ns : float
+        Exposure time in nanoseconds.
+    photons : float
+        Mean photons per pixel (0 for dark).
+    images : tuple
+        The image files (resolved against the descriptor's folder), or 2-D
+        arrays already in memory (the cropped arrays).
+    where : str
+        Where the group is written (descriptor line or array key), for messages.
+    """
+
+    kind: str
+    texp_ns: float
+    photons: float
+    images: tuple
+    where: str
+
+    @property
+    def is_stack(self) -> bool:
+        """More than a pair: a stack for the spatial non-uniformity (EMVA 1288 section 8)."""
+        return len(self.images) > 2
+
+    def frames(self) -> Iterator[np.ndarray]:
+        """The images one at a time (files read lazily)."""
+        from bayescal.io.files import read_image
+
+        for image in self.images:
+            yield read_image(image) if isinstance(image, Path) else np.asarray(image)
+
+    def stack(self, bits: int, shape: tuple[int, int] | None = None) -> np.ndarray:
+        """All images as one ``(frames, H, W)`` array, checked against the shape and the ADC's range.
+
+        Raises
+        ------
+        TableError
+            Naming the group and image: another shape than ``shape`` (or than
+            the group's first image), or values outside ``0 .. 2**bits - 1``.
+        """
+        full = 2**bits - 1
+        out = []
+        for image, frame in zip(self.images, self.frames(), strict=True):
+            name = image.name if isinstance(image, Path) else f"image {len(out)}"
+            if frame.ndim != 2 or (shape is not None and frame.shape != shape):
+                raise TableError(
+                    f"{self.where}: {name} has shape {frame.shape}; expected "
+                    + (f"{shape[0]} x {shape[1]} like the first image" if shape else "a 2-D monochrome image")
+                )
+            if frame.size and (frame.min() < 0 or frame.max() > full):
+                raise TableError(f"{self.where}: {name} holds values outside 0..{full} of a {bits}-bit ADC")
+            shape = frame.shape
+            out.append(frame)
+        return np.stack(out)
+
+
+def read_groups(path: str | os.PathLike) -> tuple[int, list[ImageGroup]]:
+    """The ADC's bit depth and every image group of an EMVA 1288 set, in the set's order.
+
+    ``path`` is a descriptor (``n``, ``b``, ``d`` and ``i`` lines, images
+    beside it; every listed image is checked to exist) or the cropped arrays
+    (``crop128.npz``: pairs and stacks as arrays).
+
+    Raises
+    ------
+    TableError
+        Naming the line of a malformed tag, the missing images or array keys.
+    """
     path = Path(path)
+    if not path.is_file():
+        raise TableError(f"no such EMVA 1288 input: {path}" if not path.exists() else f"{path} is not a file")
+    if path.suffix.lower() == ".npz":
+        return _npz_groups(path)
     bits, groups = None, []
     for lineno, raw in enumerate(path.read_text(errors="replace").splitlines(), start=1):
         line = raw.strip()
@@ -106,42 +190,70 @@ def read_descriptor(path: str | os.PathLike, progress: Callable[[int], None] | N
         try:
             if tag == "n":
                 bits = int(rest[0])
-            elif tag == "b":
-                groups.append({"kind": "bright", "texp_ns": float(rest[0]), "photons": float(rest[1]), "images": []})
-            elif tag == "d":
-                groups.append({"kind": "dark", "texp_ns": float(rest[0]), "photons": 0.0, "images": []})
+            elif tag in ("b", "d"):
+                photons = float(rest[1]) if tag == "b" else 0.0
+                kind = "bright" if tag == "b" else "dark"
+                groups.append(ImageGroup(kind, float(rest[0]), photons, (), f"{path} line {lineno}"))
             elif tag == "i":
                 if not groups:
                     raise ValueError("an image line before any b/d line")
-                groups[-1]["images"].append(path.parent / " ".join(rest).replace("\\", "/"))
+                image = path.parent / " ".join(rest).replace("\\", "/")
+                groups[-1] = replace(groups[-1], images=(*groups[-1].images, image))
         except (IndexError, ValueError) as exc:
             raise TableError(
                 f"{path}: line {lineno} '{line}': {exc}; expected 'n bits w h', 'b t p', 'd t' or 'i file'"
             ) from None
     if bits is None:
         raise TableError(f"{path}: no 'n bits width height' line")
-    missing = [img for g in groups for img in g["images"] if not img.exists()]
+    missing = [img for g in groups for img in g.images if not img.exists()]
     if missing:
         raise TableError(
-            f"{path}: {len(missing)} image(s) listed in the descriptor are missing, e.g. {missing[0]}; "
-            "characterize the cropped arrays (crop128.npz) or a reduced steps.csv instead"
+            f"{path}: {len(missing)} image(s) listed in the descriptor are missing, e.g. {missing[0]} "
+            "(image paths are relative to the descriptor's folder)"
         )
-    from bayescal.io.files import read_image
+    return bits, groups
 
+
+_NPZ_KEYS = ("bits", "bright_texp", "bright_photons", "bright_pairs", "dark_texp", "dark_pairs")
+
+
+def _npz_groups(path: Path) -> tuple[int, list[ImageGroup]]:
+    """The groups of the cropped arrays (``crop128.npz`` keys): each bright pair, its dark pair, the stacks."""
+    try:
+        z = np.load(path)
+    except (OSError, ValueError, EOFError) as exc:
+        raise TableError(f"{path} is not a readable .npz archive ({exc})") from None
+    missing = [k for k in _NPZ_KEYS if k not in z.files]
+    if missing:
+        raise TableError(
+            f"{path}: missing array(s) {missing}; expected the keys of crop128.npz ({', '.join(_NPZ_KEYS)})"
+        )
+    groups = []
+    for i in range(len(z["bright_texp"])):
+        for kind in ("bright", "dark"):
+            photons = float(z["bright_photons"][i]) if kind == "bright" else 0.0
+            pair = tuple(z[f"{kind}_pairs"][i])
+            groups.append(ImageGroup(kind, float(z[f"{kind}_texp"][i]), photons, pair, f"{path} {kind}_pairs[{i}]"))
+    if "bright_stack" in z.files:
+        texp, photons = float(z["bright_stack_texp"]), float(z["bright_stack_photons"])
+        groups.append(ImageGroup("bright", texp, photons, tuple(z["bright_stack"]), f"{path} bright_stack"))
+        if "dark_stack" in z.files:
+            texp = float(z["dark_stack_texp"]) if "dark_stack_texp" in z.files else texp
+            groups.append(ImageGroup("dark", texp, 0.0, tuple(z["dark_stack"]), f"{path} dark_stack"))
+    return int(z["bits"]), groups
+
+
+def read_descriptor(path: str | os.PathLike, progress: Callable[[int], None] | None = None) -> Steps:
+    """Read an EMVA 1288 set (descriptor or cropped arrays) and reduce it: pairs as pairs, longer groups as stacks."""
+    bits, groups = read_groups(path)
     sat = 2**bits - 1
     rows, stacks = [], {}
     for k, g in enumerate(groups):
-        if len(g["images"]) == 2:
-            rows.append(
-                {
-                    "kind": g["kind"],
-                    "texp_s": g["texp_ns"] * 1e-9,
-                    "photons": g["photons"],
-                    **reduce_pair(read_image(g["images"][0]), read_image(g["images"][1]), sat),
-                }
-            )
-        elif len(g["images"]) > 2:
-            stacks[g["kind"]] = (g, reduce_stack(read_image(p) for p in g["images"]))
+        if g.is_stack:
+            stacks[g.kind] = ({"texp_ns": g.texp_ns, "photons": g.photons}, reduce_stack(g.frames()))
+        elif len(g.images) == 2:
+            a, b = g.frames()
+            rows.append({"kind": g.kind, "texp_s": g.texp_ns * 1e-9, "photons": g.photons, **reduce_pair(a, b, sat)})
         if progress is not None:
             progress(k + 1)
     return steps_of(rows, stacks, bits, str(path))
@@ -152,42 +264,9 @@ def load_steps(path: str | os.PathLike) -> Steps:
     path = Path(path)
     if not path.is_file():
         raise TableError(f"no such EMVA 1288 input: {path}" if not path.exists() else f"{path} is not a file")
-    suffix = path.suffix.lower()
-    if suffix == ".npz":
-        return _from_npz(path)
-    if suffix == ".csv":
+    if path.suffix.lower() == ".csv":
         return _from_csv(path)
     return read_descriptor(path)
-
-
-_NPZ_KEYS = ("bits", "bright_texp", "bright_photons", "bright_pairs", "dark_texp", "dark_pairs")
-
-
-def _from_npz(path: Path) -> Steps:
-    try:
-        d = np.load(path)
-    except (OSError, ValueError, EOFError) as exc:
-        raise TableError(f"{path} is not a readable .npz archive ({exc})") from None
-    missing = [k for k in _NPZ_KEYS if k not in d]
-    if missing:
-        raise TableError(
-            f"{path}: missing array(s) {missing}; expected the keys of crop128.npz ({', '.join(_NPZ_KEYS)})"
-        )
-    bits = int(d["bits"])
-    sat = 2**bits - 1
-    rows = []
-    for kind in ("bright", "dark"):
-        photons = d["bright_photons"] if kind == "bright" else np.zeros(len(d["dark_texp"]))
-        for texp, p, pair in zip(d[f"{kind}_texp"], photons, d[f"{kind}_pairs"], strict=True):
-            rows.append(
-                {"kind": kind, "texp_s": float(texp) * 1e-9, "photons": float(p), **reduce_pair(pair[0], pair[1], sat)}
-            )
-    stacks = {}
-    for kind in ("bright", "dark"):
-        if f"{kind}_stack" in d:
-            g = {"texp_ns": float(d[f"{kind}_stack_texp"]), "photons": float(d[f"{kind}_stack_photons"])}
-            stacks[kind] = (g, reduce_stack(iter(d[f"{kind}_stack"])))
-    return steps_of(rows, stacks, bits, str(path))
 
 
 _CSV_NUMERIC = ("texp_ns", "photons_per_pixel", "mean_DN", "var_temporal_DN2")

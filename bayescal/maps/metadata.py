@@ -11,6 +11,7 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
+from pathlib import Path
 
 import numpy as np
 
@@ -73,8 +74,9 @@ def provenance(manifest: Manifest, sensor: SensorModel, calibration: str | None)
         "title": "bayescal per-pixel calibration maps",
         "bayescal_version": __version__,
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "stacks": str(manifest.directory),
+        "stacks": manifest.source or str(manifest.directory),
         "manifest_sha256": digest,
+        "source_sha256": hashlib.sha256(Path(manifest.source).read_bytes()).hexdigest() if manifest.source else "",
         "calibration": calibration or "",
         "channels": list(sensor.models),
         "cfa": sensor.cfa or "",

@@ -14,7 +14,9 @@ per stack:
 ``condition``
     an identifier pairing each flat stack with the dark stack taken at the same
     exposure (EMVA 1288 release 4.0, section 6.1: every bright measurement is
-    paired with a dark one); a dark stack may stand alone;
+    paired with a dark one); a condition holds one dark stack and any number
+    of flat stacks at its exposure (an illumination sweep shares one dark);
+    a dark stack may stand alone;
 ``gain`` (optional)
     the gain step (one value per manifest: maps are per gain);
 ``temperature_c`` (optional)
@@ -30,6 +32,7 @@ byte is read once, by whichever worker maps that block.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -139,6 +142,7 @@ class Manifest:
     directory: Path
     table: pd.DataFrame  # file, kind, exposure_s, condition, gain
     stacks: tuple[LazyStack, ...]
+    source: str = ""  # what the stacks were made from, when not measured as stacks (an EMVA 1288 descriptor)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -150,8 +154,11 @@ class Manifest:
         return int(sum(np.prod(s.shape) * s.dtype.itemsize for s in self.stacks))
 
 
-def load_manifest(directory: str | os.PathLike) -> Manifest:
+def load_manifest(directory: str | os.PathLike, *, source: str = "") -> Manifest:
     """Read and check ``conditions.csv`` in ``directory`` and open every stack lazily.
+
+    ``source`` names what the directory was written from (provenance), e.g.
+    the EMVA 1288 descriptor :func:`write_emva_stacks` read.
 
     Raises
     ------
@@ -203,10 +210,13 @@ def load_manifest(directory: str | os.PathLike) -> Manifest:
             f"{path}, column gain: {table['gain'].nunique()} gains; per-pixel maps are fitted per gain, "
             "so give one manifest per gain"
         )
-    dup = table.duplicated(["condition", "kind"], keep=False)
+    dup = table.duplicated(["condition", "kind"], keep=False) & (table["kind"] == "dark")
     if dup.any():
         i = int(np.flatnonzero(dup)[0])
-        raise TableError(f"{path} row {i + 2}: condition {table['condition'][i]!r} has two {table['kind'][i]} stacks")
+        raise TableError(
+            f"{path} row {i + 2}: condition {table['condition'][i]!r} has two dark stacks; "
+            "a condition holds one dark stack (and one or more flat stacks at its exposure)"
+        )
     for cond, rows in table.groupby("condition", sort=False):
         kinds = set(rows["kind"])
         if "flat" in kinds and "dark" not in kinds:
@@ -228,50 +238,87 @@ def load_manifest(directory: str | os.PathLike) -> Manifest:
                 f"{path} row {i + 2}: {table['file'][i]} has {s.shape[1]} x {s.shape[2]} frames; "
                 f"the first stack has {shape[0]} x {shape[1]} (all frames must share one shape)"
             )
-    return Manifest(directory, table.reset_index(drop=True), stacks)
+    return Manifest(directory, table.reset_index(drop=True), stacks, source)
 
 
 #: the public name: a stack directory's validated manifest, every stack opened lazily
 load_stacks = load_manifest
 
 
-def write_emva_stacks(npz: str | os.PathLike, out_dir: str | os.PathLike, *, max_level: float = 0.7) -> Path:
-    """An EMVA 1288 image set (``crop128.npz`` layout) as a stack directory with its manifest.
+def write_emva_stacks(
+    source: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    max_level: float = 0.7,
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
+    """An EMVA 1288 image set as a stack directory with its manifest.
 
-    Every bright pair whose mean stays below ``max_level`` of full scale
-    (EMVA 1288 release 4.0 section 8: non-uniformities are measured below
-    saturation) becomes a flat condition with its dark pair; the bright and
-    dark stacks (e.g. 50 frames) become one more condition.
+    ``source`` is a descriptor (``EMVA1288_Data.txt``: ``n``, ``b``, ``d`` and
+    ``i`` lines, its images beside it) or the cropped arrays (``crop128.npz``).
+    Both of the standard's layouts are read: an exposure sweep at one
+    irradiance (a dark pair per exposure) and an illumination sweep at one
+    exposure (one dark pair for all bright pairs).  Every bright group whose
+    mean stays below ``max_level`` of full scale (EMVA 1288 release 4.0
+    section 8: non-uniformities are measured below saturation) becomes a flat
+    stack; it shares a condition with the dark group of its exposure (pairs
+    with pairs, stacks of more than two images with stacks).  Darks whose
+    condition keeps no flat are left out with their brights, so the per-pixel
+    dark line spans the exposures of the flats.
+
+    Raises
+    ------
+    TableError
+        Naming the descriptor line of a bright group with no dark group at its
+        exposure, images of another shape than the first, or values outside
+        the ADC's range.
     """
-    z = np.load(npz)
+    from bayescal.io.emva import ImageGroup, read_groups
+
+    bits, groups = read_groups(source)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    full = 2 ** int(z["bits"]) - 1
-    rows = []
-    for i in range(len(z["bright_texp"])):
-        if z["bright_pairs"][i].mean() > max_level * full:
+    full = 2**bits - 1
+    dtype = np.uint8 if bits <= 8 else np.uint16 if bits <= 16 else np.uint32
+
+    def condition(g: ImageGroup) -> str:
+        return f"t{g.texp_ns:.0f}ns" + ("_stack" if g.is_stack else "")
+
+    darks: dict[str, ImageGroup] = {}
+    for g in groups:
+        if g.kind == "dark":
+            if condition(g) in darks:
+                raise TableError(
+                    f"{g.where}: a second dark group at {g.texp_ns:g} ns (first at {darks[condition(g)].where}); "
+                    "give one dark group per exposure"
+                )
+            darks[condition(g)] = g
+    shape, rows, written = None, [], set()
+    flats = [g for g in groups if g.kind == "bright"]
+    for k, g in enumerate(flats):
+        if condition(g) not in darks:
+            raise TableError(
+                f"{g.where}: bright group at {g.texp_ns:g} ns has no dark group of "
+                f"{'a stack' if g.is_stack else 'a pair'} at its exposure; every bright measurement "
+                "needs the dark one taken at its exposure (EMVA 1288 release 4.0, section 6.1)"
+            )
+        frames = g.stack(bits, shape)
+        shape = frames.shape[1:]
+        if progress is not None:
+            progress(k + 1, len(flats))
+        if frames.mean() > max_level * full:
             continue
-        for kind, key in (("flat", "bright_pairs"), ("dark", "dark_pairs")):
-            np.save(out / f"{kind}_{i:02d}.npy", z[key][i])
-            rows.append(
-                {
-                    "file": f"{kind}_{i:02d}.npy",
-                    "kind": kind,
-                    "exposure_s": float(z["bright_texp"][i]) * 1e-9,
-                    "condition": f"pair{i:02d}",
-                }
-            )
-    if "bright_stack" in z.files:
-        for kind, key in (("flat", "bright_stack"), ("dark", "dark_stack")):
-            np.save(out / f"{kind}_stack.npy", z[key])
-            rows.append(
-                {
-                    "file": f"{kind}_stack.npy",
-                    "kind": kind,
-                    "exposure_s": float(z["bright_stack_texp"]) * 1e-9,
-                    "condition": "stack",
-                }
-            )
+        cond = condition(g)
+        todo = [("flat", g, frames)]
+        if cond not in written:  # an illumination sweep's bright groups share their exposure's dark group
+            written.add(cond)
+            todo.append(("dark", darks[cond], darks[cond].stack(bits, shape)))
+        for kind, grp, data in todo:
+            name = f"{kind}_{len(rows):03d}.npy"
+            np.save(out / name, data.astype(dtype, copy=False))
+            rows.append({"file": name, "kind": kind, "exposure_s": grp.texp_ns * 1e-9, "condition": cond})
+    if not rows:
+        raise TableError(f"{source}: every bright group is above {max_level:.0%} of full scale; nothing to map")
     pd.DataFrame(rows).to_csv(out / MANIFEST, index=False)
     return out
 
