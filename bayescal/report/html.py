@@ -283,8 +283,11 @@ def _fig_residuals(cal: Calibration, frame: pd.DataFrame, tree) -> str:
                 idx = np.array([levels.get(str(v), 0) for v in rows["level"]])
                 delivered = delivered * np.where(known, Sphere.factor(level_error[:, idx]), 1.0)
             pred = cal.sample_dn(ch, delivered, s, rng, n_avg=float(np.median(n_avg)), relative=True, per_draw=True)
-            z = (rows["dn_mean"].to_numpy() - np.median(pred, axis=0)) / np.std(pred, axis=0)
-            near = _partly_clipped(cal, ch, delivered, s, prnu_bound, np.std(pred, axis=0))
+            sd = np.std(pred, axis=0)
+            resid = rows["dn_mean"].to_numpy() - np.median(pred, axis=0)
+            z = np.divide(resid, sd, out=np.full_like(resid, np.nan), where=sd > 0)
+            # a row every draw predicts at full scale has no spread to scale by: it is clipped, left out as such
+            near = _partly_clipped(cal, ch, delivered, s, prnu_bound, sd) | ~(sd > 0)
             hidden += int(near.sum())
             label = f"{t:g} s, gain {g:g}" + (f", TDI {m:g}" if m != 1 else "")
             ax.plot(stim[~near], z[~near], "o", ms=3.5, color=colours[k % len(colours)], label=label)
