@@ -13,8 +13,8 @@ hierarchy (NUTS on its scales); per unit and channel, against the truth:
 - RMSE (relative for gains), mean 95 % interval width and 95 % coverage, alone and pooled.
 
 Also the stage-two time (warm) beside the stage-one ``fit_many`` of the same units, in
-one run.  Usage: ``python benchmarks/fleet_pooling.py [--quick]``; results in
-``benchmarks/results/fleet_pooling.{csv,md}``.
+one run.  Usage: ``python benchmarks/fleet_pooling.py [--quick] [--cameras 50 --levels 6 --seeds 1
+--out fleet_pooling_50]``; results in ``benchmarks/results/fleet_pooling.{csv,md}`` (or the ``--out`` stem).
 """
 
 from __future__ import annotations
@@ -113,13 +113,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="5 and 20 cameras only")
     ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--cameras", help="fleet sizes, comma-separated (default 5,20,50; --quick: 5,20)")
+    ap.add_argument("--levels", default="3,6,12", help="radiance levels per brief camera, comma-separated")
+    ap.add_argument("--out", default="fleet_pooling", help="result stem under benchmarks/results/")
     args = ap.parse_args()
     spec = load_spec(ROOT / "models" / "fleet_seed000.toml")
     sizes = (5, 20) if args.quick else (5, 20, 50)
+    if args.cameras:
+        sizes = tuple(int(v) for v in args.cameras.split(","))
     seeds = range(args.seeds)
     rows, timings = [], []
     for n in sizes:
-        for levels in (3, 6, 12):
+        for levels in (int(v) for v in args.levels.split(",")):
             for seed in seeds:
                 r, t = run(n, levels, 100 + seed, spec)
                 rows += r
@@ -127,7 +132,7 @@ def main() -> None:
                 print(t, flush=True)
     df = pd.DataFrame(rows)
     out = ROOT / "benchmarks" / "results"
-    df.to_csv(out / "fleet_pooling.csv", index=False, float_format="%.6g")
+    df.to_csv(out / f"{args.out}.csv", index=False, float_format="%.6g")
     summary = (
         df.groupby(["quantity", "cameras", "levels", "method"])
         .agg(
@@ -157,7 +162,7 @@ def main() -> None:
         _markdown(tim),
         "",
     ]
-    (out / "fleet_pooling.md").write_text("\n".join(text))
+    (out / f"{args.out}.md").write_text("\n".join(text))
     print("\n".join(text))
 
 
