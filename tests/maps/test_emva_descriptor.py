@@ -36,28 +36,40 @@ def write_descriptor(folder, bits, groups):
 
 
 def test_descriptor_gives_the_stacks_of_the_cropped_arrays(tmp_path):
+    """Every 5th step of the crop (two above 70 % of full scale) and 8 frames of each stack, written both ways."""
     z = np.load(CROP)
+    steps, frames = slice(0, None, 5), slice(0, 8)
+    subset = {k: z[k] for k in z.files}
+    for k in ("bright_texp", "bright_photons", "bright_pairs", "dark_texp", "dark_pairs"):
+        subset[k] = z[k][steps]
+    for k in ("bright_stack", "dark_stack"):
+        subset[k] = z[k][frames]
+    np.savez(tmp_path / "subset.npz", **subset)
     groups = []
-    for i in range(len(z["bright_texp"])):
-        groups.append(("b", z["bright_texp"][i], z["bright_pairs"][i], z["bright_photons"][i]))
-        groups.append(("d", z["dark_texp"][i], z["dark_pairs"][i]))
-    groups.append(("b", z["bright_stack_texp"], z["bright_stack"], z["bright_stack_photons"]))
-    groups.append(("d", z["dark_stack_texp"], z["dark_stack"]))
+    for i in range(len(subset["bright_texp"])):
+        groups.append(("b", subset["bright_texp"][i], subset["bright_pairs"][i], subset["bright_photons"][i]))
+        groups.append(("d", subset["dark_texp"][i], subset["dark_pairs"][i]))
+    groups.append(("b", z["bright_stack_texp"], subset["bright_stack"], z["bright_stack_photons"]))
+    groups.append(("d", z["dark_stack_texp"], subset["dark_stack"]))
     descriptor = write_descriptor(tmp_path / "set", int(z["bits"]), groups)
-    a = write_emva_stacks(CROP, tmp_path / "from_npz")
+    a = write_emva_stacks(tmp_path / "subset.npz", tmp_path / "from_npz")
     b = write_emva_stacks(descriptor, tmp_path / "from_txt")
     ta, tb = pd.read_csv(a / "conditions.csv"), pd.read_csv(b / "conditions.csv")
     pd.testing.assert_frame_equal(ta, tb)
-    assert (ta.kind == "flat").sum() == 28  # 27 pairs below 70 % of full scale, and the stack
-    assert (ta.kind == "dark").sum() == 28  # each with the dark group of its exposure
+    full = 2 ** int(z["bits"]) - 1
+    below = int((subset["bright_pairs"].mean(axis=(1, 2, 3)) <= 0.7 * full).sum())
+    assert 0 < below < len(subset["bright_texp"])  # the subset has steps on both sides of the cut
+    assert (ta.kind == "flat").sum() == below + 1  # the pairs below 70 % of full scale, and the stack
+    assert (ta.kind == "dark").sum() == below + 1  # each with the dark group of its exposure
     for name in ta.file:
         np.testing.assert_array_equal(np.load(a / name), np.load(b / name))
     # the characterization reads the same descriptor to the same per-step statistics as the arrays
     from bayescal.io.emva import load_steps
 
-    sa, sb = load_steps(CROP), load_steps(descriptor)
+    sa, sb = load_steps(tmp_path / "subset.npz"), load_steps(descriptor)
     np.testing.assert_allclose(sb.bright.mean_dn, sa.bright.mean_dn, rtol=1e-12)
     np.testing.assert_allclose(sb.dark.var_dn2, sa.dark.var_dn2, rtol=1e-12)
+    assert sb.stack["n_images"] == 8
 
 
 @pytest.fixture(scope="module")
