@@ -151,7 +151,7 @@ def main() -> None:
     text = [
         "# Fleet pooling versus each camera alone",
         "",
-        f"Simulated fleets (bayescal.validation.fleet), 3 yearly campaigns, seeds {list(seeds)}; "
+        f"Simulated fleets (bayescal.validation.fleet), 3 yearly campaigns, seeds {[100 + s for s in seeds]}; "
         "RMSE and widths relative to the true gain (offsets in DN); coverage of 95 % intervals "
         f"over units x channels (n = {int(summary['n'].min())}-{int(summary['n'].max())} per cell).",
         "",
