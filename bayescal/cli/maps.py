@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import shutil
-import tempfile
 from pathlib import Path
 
 
@@ -24,11 +22,11 @@ def _stack_directory(args, stage):
     """The stack directory to map: the argument itself, or an EMVA 1288 set written out as stacks.
 
     A descriptor (``.txt``) or cropped arrays (``.npz``) are converted into a
-    hidden folder beside ``--out`` (visible to a cluster's workers when the
-    output is on a shared disk), removed afterwards, also on an interrupt.
+    hidden folder beside ``--out``, removed afterwards, also on an interrupt.
     """
     from bayescal.cli.progress import progress_bar
     from bayescal.errors import TableError
+    from bayescal.io.files import scratch_directory
     from bayescal.maps.stacks import write_emva_stacks
 
     path = Path(args.stacks)
@@ -40,16 +38,11 @@ def _stack_directory(args, stage):
             f"{path}: expected a stack directory (with conditions.csv), an EMVA 1288 descriptor (.txt) "
             "or the cropped arrays (.npz)"
         )
-    out = Path(args.out).resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.emva-stacks-", dir=out.parent))
-    try:
+    with scratch_directory(args.out, "emva-stacks") as scratch:
         stage(f"writing the EMVA 1288 image set {path} as stacks")
         with progress_bar(1, "bright groups", quiet=args.quiet) as tick:
-            write_emva_stacks(path, staging, progress=tick)
-        yield staging, str(path.resolve())
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+            write_emva_stacks(path, scratch, progress=tick)
+        yield scratch, str(path.resolve())
 
 
 def _maps(args, stage, manifest) -> int:

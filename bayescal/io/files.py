@@ -21,6 +21,7 @@ __all__ = [
     "write_text_atomic",
     "write_json_atomic",
     "staged_directory",
+    "scratch_directory",
     "check_output_dir",
     "read_image",
     "MARKER",
@@ -186,6 +187,25 @@ def staged_directory(out_dir: str | os.PathLike, kind: str = "output") -> Iterat
         _STAGING.discard(staging)
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
+
+
+@contextmanager
+def scratch_directory(beside: str | os.PathLike, name: str) -> Iterator[Path]:
+    """A hidden working directory beside ``beside``, removed afterwards, also when the run is interrupted.
+
+    For intermediate files a run needs but does not keep (an image set
+    rewritten as stacks); being beside the output, it is on the same disk,
+    visible to a cluster's workers when that disk is shared.
+    """
+    beside = Path(beside).resolve()
+    beside.parent.mkdir(parents=True, exist_ok=True)
+    scratch = Path(tempfile.mkdtemp(prefix=f".{beside.name}.{name}-", dir=beside.parent))
+    _STAGING.add(scratch)
+    try:
+        yield scratch
+    finally:
+        _STAGING.discard(scratch)
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def discard_staging() -> None:
