@@ -45,6 +45,8 @@ _LAZY = {
     "Steps": "bayescal.io.emva",
     "load_steps": "bayescal.io.emva",
     "read_descriptor": "bayescal.io.emva",
+    "read_groups": "bayescal.io.emva",
+    "ImageGroup": "bayescal.io.emva",
     "BACKENDS": "bayescal.fitting.fit",
     "Fit": "bayescal.fitting.result",
     "fit": "bayescal.fitting.fit",
@@ -144,7 +146,7 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from bayescal.inference.diagnostics import Diagnostics
     from bayescal.inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit
     from bayescal.io.design import Design, Truth, load_design
-    from bayescal.io.emva import Steps, load_steps, read_descriptor
+    from bayescal.io.emva import ImageGroup, Steps, load_steps, read_descriptor, read_groups
     from bayescal.io.table import MeasurementTable, load_table
     from bayescal.maps.apply import MapSet, apply_maps
     from bayescal.maps.build import build_maps
