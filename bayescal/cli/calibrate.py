@@ -24,13 +24,14 @@ def run_fit(
 
     from bayescal import FitFailedWarning, fit
     from bayescal.cli.progress import progress_bar, stage_reporter
+    from bayescal.inference import registry as backends
 
     inf = spec.inference
     if backend == "emcee":
         total, desc = inf.emcee_burn + inf.emcee_steps, "emcee (ensemble steps)"
     else:
         total, desc = inf.warmup + inf.draws, f"{backend} ({inf.chains} chains)"
-    sampling = backend in ("nuts", "blackjax", "emcee")
+    sampling = backends.chained(backend)
     with progress_bar(total, desc, quiet or not sampling) as tick:  # draws on a terminal only
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FitFailedWarning)  # reported below, loudly

@@ -25,7 +25,7 @@ from bayescal._config import computes
 from bayescal.inference.diagnostics import mcmc_diagnostics
 from bayescal.inference.laplace import covariance_factor
 from bayescal.inference.program import Program
-from bayescal.inference.registry import Draws, OneByOne, register
+from bayescal.inference.registry import SHIPPED, Draws, OneByOne, register
 from bayescal.inference.samplers import chains_dataset
 
 __all__ = ["BlackjaxNutsBackend", "run_blackjax"]
@@ -125,7 +125,7 @@ class BlackjaxNutsBackend(OneByOne):
     """BlackJAX NUTS with window adaptation, in Laplace-whitened coordinates."""
 
     name: str = "blackjax"
-    batched: bool = False
+    batched: bool = SHIPPED["blackjax"].batched
 
     def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
         inf = model.spec.inference

@@ -17,11 +17,24 @@ accepts it by name beside these (:data:`BASELINE`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
-__all__ = ["Draws", "Backend", "OneByOne", "REGISTRY", "BASELINE", "register", "names", "get"]
+__all__ = [
+    "Draws",
+    "Backend",
+    "OneByOne",
+    "Shipped",
+    "SHIPPED",
+    "REGISTRY",
+    "BASELINE",
+    "register",
+    "names",
+    "get",
+    "chained",
+    "reports",
+]
 
 #: the classical fit, accepted by ``fit`` beside the posterior backends
 BASELINE = "lsq"
@@ -70,14 +83,35 @@ class OneByOne:
         return out
 
 
-#: the shipped backends: name -> (module that registers it, runs many datasets together, description).  Read
-#: without importing the modules (they pull in JAX), so the command line's help stays instant; the
-#: backend classes take their ``batched`` flag from here.
-SHIPPED: dict[str, tuple[str, bool, str]] = {
-    "nuts": ("bayescal.inference.samplers", True, "numpyro NUTS in Laplace-whitened coordinates"),
-    "laplace": ("bayescal.inference.samplers", False, "Gaussian at the posterior mode (fast)"),
-    "emcee": ("bayescal.inference.samplers", False, "emcee's ensemble sampler"),
-    "blackjax": ("bayescal.inference.blackjax_backend", False, "BlackJAX NUTS with window adaptation"),
+class Shipped(NamedTuple):
+    """What is known of a shipped backend without importing it (its module pulls in JAX)."""
+
+    module: str  # the module that registers it
+    batched: bool  # runs many datasets together
+    chained: bool  # its draws come in chains (trace and rank plots, a progress bar of iterations)
+    reports: tuple[str, ...]  # the diagnostics its verdict fills (what a report shows for it)
+    description: str
+
+
+_NUTS_REPORTS = ("divergences", "max_rhat", "min_ess_bulk", "min_ess_tail")
+
+#: the shipped backends, read without importing their modules, so the command line's help stays instant;
+#: the backend classes take their ``batched`` flag from here.
+SHIPPED: dict[str, Shipped] = {
+    "nuts": Shipped(
+        "bayescal.inference.samplers", True, True, _NUTS_REPORTS, "numpyro NUTS in Laplace-whitened coordinates"
+    ),
+    "laplace": Shipped(
+        "bayescal.inference.samplers",
+        False,
+        False,
+        ("map_converged", "hessian_positive_definite"),
+        "Gaussian at the posterior mode (fast)",
+    ),
+    "emcee": Shipped("bayescal.inference.samplers", False, True, ("min_ess_bulk",), "emcee's ensemble sampler"),
+    "blackjax": Shipped(
+        "bayescal.inference.blackjax_backend", False, True, _NUTS_REPORTS, "BlackJAX NUTS with window adaptation"
+    ),
 }
 
 REGISTRY: dict[str, Backend] = {}
@@ -91,7 +125,7 @@ def register(backend: Backend) -> Backend:
 
 def names(*, baseline: bool = False, batched: bool = False) -> list[str]:
     """Backend names (``batched``: only those that run many datasets together), optionally with ``lsq``."""
-    out = [n for n, (_, many, _) in SHIPPED.items() if many or not batched]
+    out = [n for n, info in SHIPPED.items() if info.batched or not batched]
     out += [n for n, b in REGISTRY.items() if n not in SHIPPED and (b.batched or not batched)]
     return out + [BASELINE] if baseline else out
 
@@ -101,5 +135,18 @@ def get(name: str) -> Backend:
     if name not in REGISTRY and name in SHIPPED:
         import importlib
 
-        importlib.import_module(SHIPPED[name][0])
+        importlib.import_module(SHIPPED[name].module)
     return REGISTRY[name]
+
+
+def chained(name: str) -> bool:
+    """Whether backend ``name`` draws in chains (a registered backend says so by a ``chained`` attribute)."""
+    if name in SHIPPED:
+        return SHIPPED[name].chained
+    backend = REGISTRY.get(name)  # None for the least-squares baseline
+    return backend is not None and bool(getattr(backend, "chained", True))
+
+
+def reports(name: str) -> tuple[str, ...]:
+    """The diagnostics backend ``name``'s verdict fills (a registered backend lists them in ``reports``)."""
+    return SHIPPED[name].reports if name in SHIPPED else tuple(getattr(REGISTRY.get(name), "reports", ()))

@@ -99,7 +99,7 @@ class LaplaceBackend(OneByOne):
     """Gaussian at the mode (the fast path; the excess-scatter scale integrated on a grid)."""
 
     name: str = "laplace"
-    batched: bool = SHIPPED["laplace"][1]
+    batched: bool = SHIPPED["laplace"].batched
 
     def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
         extra: dict = {}
@@ -115,7 +115,7 @@ class NutsBackend:
     """numpyro NUTS in Laplace-whitened coordinates, rerun with smaller steps after divergences."""
 
     name: str = "nuts"
-    batched: bool = SHIPPED["nuts"][1]
+    batched: bool = SHIPPED["nuts"].batched
 
     def sample_many(self, models, program, modes, seeds, *, progress=None, iterations=None, stage=None) -> list[Draws]:
         """Every (dataset, chain) pair on one thread pool (:func:`~bayescal.inference.nuts.run_nuts_many`)."""
@@ -149,7 +149,7 @@ class EmceeBackend(OneByOne):
     """emcee's affine-invariant ensemble, walkers started around the mode."""
 
     name: str = "emcee"
-    batched: bool = SHIPPED["emcee"][1]
+    batched: bool = SHIPPED["emcee"].batched
 
     def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
         inf = model.spec.inference

@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from bayescal.errors import PosteriorError
+from bayescal.inference import registry as backends
 from bayescal.io.files import write_json_atomic, write_text_atomic
 from bayescal.model import kinds
 from bayescal.model.components import Saturation, Sphere
@@ -370,13 +371,10 @@ def _fig_budget(budget: pd.DataFrame) -> str:
     return _png(fig)
 
 
-#: backends whose draws come in chains (for the others, trace and rank plots say nothing)
-CHAINED = ("nuts", "blackjax", "emcee")
-
-
 def _fig_chains(tree, backend: str) -> dict[str, str]:
-    """arviz's trace-and-density and rank plots of the sphere-relative gains, for a backend with chains."""
-    if backend not in CHAINED:
+    """arviz's trace-and-density and rank plots of the sphere-relative gains, for a backend with chains
+    (for the others they say nothing)."""
+    if not backends.chained(backend):
         return {}
     import arviz_plots as azp
     from matplotlib import pyplot as plt
@@ -438,14 +436,9 @@ def _chains_section(figures: dict) -> str:
 def _diagnostics_row(backend: str, d: dict) -> dict:
     """The diagnostics that apply to the backend used (no divergences for a Laplace fit)."""
     misfit = d.get("misfit") or {}
-    row: dict = {}
-    if backend in ("nuts", "emcee"):
-        keys = ("divergences", "max_rhat", "min_ess_bulk", "min_ess_tail") if backend == "nuts" else ("min_ess_bulk",)
-        row.update({k: d.get(k) for k in keys})
-        if d.get("retried"):
-            row["retried"] = d["retried"]
-    else:
-        row.update(map_converged=d.get("map_converged"), hessian_positive_definite=d.get("hessian_positive_definite"))
+    row: dict = {k: d.get(k) for k in backends.reports(backend)}
+    if d.get("retried"):
+        row["retried"] = d["retried"]
     row["largest |residual| (pred. sd)"] = d.get("max_abs_residual_z")
     if "excess_ratio" in misfit:
         row["excess scatter / noise floor"] = misfit["excess_ratio"]

@@ -80,6 +80,11 @@ def test_every_backend_matches_the_closed_form(seed000, backend):
     chains, draws = np.shape(post["G"])[:2]
     flat = np.concatenate([np.asarray(post[k]).reshape(chains * draws, -1) for k in ("G", "b0", "b1")], axis=1)
     d = result.diagnostics
+    # what the registry says the backend reports (what the fit report shows for it) is in its verdict, as numbers
+    info = d.to_dict()
+    for key in backends.reports(backend):
+        assert key in info and np.isfinite(float(info[key])), (backend, key, info.get(key))
+    assert (chains > 1) == backends.chained(backend), (backend, chains)  # chained backends: trace and rank plots
     ess = float(d.min_ess_bulk) if backend != "laplace" else float(flat.shape[0])
     sd = np.sqrt(np.diag(cov))
     z = (flat.mean(axis=0) - mean) / (sd / np.sqrt(ess))
