@@ -30,6 +30,7 @@ from bayescal import load_spec
 from bayescal.fleet import fit_fleet
 from bayescal.fleet.stage1 import fit_units
 from bayescal.fleet.units import fleet_from_frame
+from bayescal.report.text import markdown_table
 from bayescal.validation.fleet import FleetDesign, simulate_fleet
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -100,15 +101,6 @@ def run(n_cameras: int, n_levels: int, seed: int, spec) -> tuple[list[dict], dic
     return rows, timing
 
 
-def _markdown(df: pd.DataFrame) -> str:
-    def cell(v) -> str:
-        return f"{v:.4g}" if isinstance(v, float) else str(v)
-
-    lines = ["| " + " | ".join(map(str, df.columns)) + " |", "|" + "---|" * len(df.columns)]
-    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in df.itertuples(index=False)]
-    return "\n".join(lines)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="5 and 20 cameras only")
@@ -155,11 +147,11 @@ def main() -> None:
         "RMSE and widths relative to the true gain (offsets in DN); coverage of 95 % intervals "
         f"over units x channels (n = {int(summary['n'].min())}-{int(summary['n'].max())} per cell).",
         "",
-        _markdown(wide.reset_index()),
+        markdown_table(wide.reset_index()),
         "",
         "## Time and diagnostics (2 cores; stage two warm = a second fit of the same structure)",
         "",
-        _markdown(tim),
+        markdown_table(tim),
         "",
     ]
     (out / f"{args.out}.md").write_text("\n".join(text))

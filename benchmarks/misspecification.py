@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 import bayescal as bc
+from bayescal.report.text import markdown_table
 from bayescal.validation import BenchCamera, Departures, simulate_bench, with_held_out
 
 OUT = Path(__file__).resolve().parent / "results"
@@ -173,12 +174,7 @@ def _markdown(df: pd.DataFrame) -> str:
         "lsq_coef_coverage",
         "verdict",
     ]
-    head = "| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n"
-    body = "".join(
-        "| " + " | ".join(f"{r[c]:.3f}" if isinstance(r[c], float) else str(r[c]) for c in cols) + " |\n"
-        for _, r in df.iterrows()
-    )
-    return head + body
+    return markdown_table(df[cols]) + "\n"
 
 
 if __name__ == "__main__":
