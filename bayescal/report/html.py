@@ -249,7 +249,9 @@ def _fig_residuals(cal: Calibration, frame: pd.DataFrame, tree) -> str:
     error (per draw), so the residuals are the ones the misfit checks judge."""
     import tomllib
 
-    prnu_bound = tomllib.loads(tree.attrs["spec_toml"]).get("saturation", {}).get("prnu_bound", 0.03)
+    from bayescal.model.spec import ModelSpec
+
+    prnu_bound = ModelSpec.from_dict(tomllib.loads(tree.attrs["spec_toml"])).saturation.prnu_bound  # its default too
     hidden = 0
     level_error, levels = None, {}
     post = tree["posterior"]
