@@ -15,7 +15,7 @@ def models_dir() -> Path:
     ``models/``; a built wheel carries the same files as the ``bayescal.models``
     package (``pyproject.toml`` maps one onto the other).
     """
-    source = Path(__file__).resolve().parent.parent / "models"
+    source = Path(__file__).resolve().parents[2] / "models"  # bayescal/io/resources.py -> the repository root
     if (source / "seed000_design.toml").is_file():
         return source
     return Path(str(files("bayescal.models")))
