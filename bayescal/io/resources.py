@@ -18,4 +18,6 @@ def models_dir() -> Path:
     source = Path(__file__).resolve().parents[2] / "models"  # bayescal/io/resources.py -> the repository root
     if (source / "seed000_design.toml").is_file():
         return source
-    return Path(str(files("bayescal.models")))
+    # ``bayescal.models`` has no ``__init__``: asked for directly, importlib gives a namespace path whose str is
+    # not a file path; as a folder of the ``bayescal`` package it is a plain one
+    return Path(str(files("bayescal") / "models"))
