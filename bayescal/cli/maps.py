@@ -87,7 +87,7 @@ def _maps(args, stage, manifest) -> int:
                 write_maps(ds, args.out, netcdf=True, progress=advance)
                 maps = read_maps(args.out)
             else:
-                maps = make_maps(manifest, args.out, **kw, progress=advance, processes=True, stage=population)
+                maps = make_maps(manifest, args.out, **kw, progress=advance, stage=population)
     finally:
         if client is not None:
             client.close()

@@ -81,7 +81,9 @@ def build() -> argparse.ArgumentParser:
     mp.add_argument(
         "--fit-pixels", type=int, default=262_144, help="pixels used to fit the population (default 262144)"
     )
-    mp.add_argument("--rows-per-chunk", type=int, default=None, help="rows per block (default: ~48 MB per block)")
+    mp.add_argument(
+        "--rows-per-chunk", type=int, default=None, help="rows per block and store chunk (default: ~2^20 pixels)"
+    )
     mp.add_argument(
         "--scheduler", help="address of a dask.distributed scheduler (e.g. tcp://host:8786); default: this machine"
     )

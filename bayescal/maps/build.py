@@ -6,7 +6,7 @@ whatever the sensor size, and a ``dask.distributed`` client, when one is
 active, spreads the blocks over its workers:
 
 1. **population**: the per-pixel statistics of an evenly spaced subsample of
-   row blocks (``fit_pixels`` pixels) give the channel's signal per condition,
+   bands of rows (``fit_pixels`` pixels) give the channel's signal per condition,
    the temporal variance of every stack, and the population (PRNU, DSNU and
    dark-current spreads, defect and noisy-pixel fractions) by maximum marginal
    likelihood (:mod:`bayescal.maps.population`);
@@ -25,8 +25,9 @@ import os
 
 import numpy as np
 
+from bayescal.maps.kernel import block_maps
 from bayescal.maps.metadata import provenance, variable_attrs
-from bayescal.maps.model import SensorModel, block_maps, fit_map_model
+from bayescal.maps.model import SensorModel, fit_map_model
 from bayescal.maps.stacks import Manifest, load_manifest
 
 __all__ = ["build_maps", "lazy_maps"]
@@ -55,9 +56,9 @@ def build_maps(
     stacks : path or Manifest
         A directory with ``conditions.csv`` (see :mod:`bayescal.maps.stacks`).
     fit_pixels : int
-        Pixels (whole row blocks, evenly spaced) used to fit the population.
+        Pixels (whole rows in evenly spaced bands) used to fit the population.
     rows_per_chunk : int, optional
-        Rows per block (default: about 48 MB of float64 frames per block).
+        Rows per block and per store chunk (default: about 2^20 pixels per block).
     calibration : str, optional
         The channel-level fit directory whose absolute response the maps are
         relative to (recorded in the provenance; :func:`bayescal.maps.apply_maps`

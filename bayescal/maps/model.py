@@ -1,14 +1,16 @@
 """Pass 1 of the maps: each channel's signal, noise and pixel population, and the per-block mapping.
 
 :class:`MapModel` is one channel's fitted model (design, population, noisy-pixel
-mixture); :class:`SensorModel` holds one per colour plane.  :func:`block_maps`
-turns rows of every stack into every pixel's posterior summaries: the unit of
-work of the streaming pass (:mod:`bayescal.maps.build`, :mod:`bayescal.maps.store`).
+mixture); :class:`SensorModel` holds one per colour plane.  :func:`map_pixels`
+turns every pixel's stack means and variances into its posterior summaries,
+in numpy or, compiled, in the streaming pass (:mod:`bayescal.maps.kernel`).
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -20,15 +22,18 @@ from bayescal.maps.population import (
     LinearDesign,
     NoiseMixture,
     Population,
+    components,
     fit_noise_mixture,
     fit_population,
+    mixture_posterior,
+    noisy_probability,
     pixel_posterior,
     spread_uncertainty,
 )
 from bayescal.maps.stacks import Manifest, block_statistics
 from bayescal.model.components.dark import Dark
 
-__all__ = ["MapModel", "SensorModel", "DEFECT_CODES", "fit_map_model", "block_maps"]
+__all__ = ["MapModel", "SensorModel", "PixelMapper", "DEFECT_CODES", "fit_map_model", "map_pixels"]
 
 #: defect codes of the ``defect`` map
 DEFECT_CODES = {0: "none", 1: "hot", 2: "dead", 3: "noisy", 4: "bright", 5: "offset"}
@@ -65,47 +70,78 @@ class MapModel:
             names.append("corr_offset_dark")
         return names + ["defect_probability", "noisy_probability", "noise_scale", "defect"]
 
-    def block(self, means: np.ndarray, variances: np.ndarray) -> np.ndarray:
-        """Per-pixel maps of one block: ``means``, ``variances`` (S, N) -> (outputs, N) float32."""
-        y = means.T
-        theta_hat, _ = self.design.least_squares(y)
+    def mapper(self) -> PixelMapper:
+        """The arrays every pixel's mapping needs (see :func:`map_pixels`)."""
         frames = self.stacks["frames"].to_numpy(float)
-        stat = np.sum(((frames - 1) / self.stacks["variance"].to_numpy())[:, None] * variances, axis=0)
-        q_noisy = self.noise.probability(stat)
-        phi = 1.0 + q_noisy * (self.noise.scale - 1.0)
-        post = pixel_posterior(theta_hat, phi, self.design.covariance, self.population)
-        out = []
-        sd = np.sqrt(np.einsum("njj->nj", post.cov))
-        for j, _ in enumerate(self.names):
-            out += [post.mean[:, j], sd[:, j], theta_hat[:, j]]
-        if "dark_current_dn_s" in self.names:
-            out.append(post.cov[:, 0, 1] / np.maximum(sd[:, 0] * sd[:, 1], 1e-300))
-        p_defect = 1.0 - (1.0 - post.defect_probability) * (1.0 - q_noisy)
-        out += [p_defect, q_noisy, phi, self._classify(post, q_noisy, p_defect)]
-        return np.stack(out).astype(np.float32)
-
-    def _classify(self, post, q_noisy: np.ndarray, p_defect: np.ndarray) -> np.ndarray:
-        """Defect code per pixel: the parameter that departs most from the normal population, or noisy."""
         pop = self.population
-        dev = (post.mean - pop.means[0]) / np.maximum(pop.spread, 1e-300)
-        code = np.zeros(len(dev))
-        idx = {n: j for j, n in enumerate(self.names)}
-        which = np.argmax(np.abs(dev), axis=1)
-        sign = np.sign(dev[np.arange(len(dev)), which])
-        name = np.asarray(self.names)[which]
-        code = np.where(name == "offset_dn", 5, code)
-        code = np.where(name == "dark_current_dn_s", np.where(sign > 0, 1, 5), code)
-        if "relative_gain" in idx:
-            code = np.where(name == "relative_gain", np.where(sign < 0, 2, 4), code)
-        code = np.where(q_noisy > post.defect_probability, 3, code)
-        return np.where(p_defect > DEFECT_THRESHOLD, code, 0)
+        return PixelMapper(
+            self.design.estimator,
+            (frames - 1) / self.stacks["variance"].to_numpy(),
+            self.noise.constants(),
+            components(pop, self.design.covariance),
+            np.log(pop.weights),
+            pop.means[0],
+            np.maximum(pop.spread, 1e-300),
+        )
+
+    def block(self, means: np.ndarray, variances: np.ndarray) -> np.ndarray:
+        """Per-pixel maps of one block: ``means``, ``variances`` (S, N) -> (outputs, N) float32 (numpy)."""
+        return map_pixels(self.mapper(), means, variances, self.names)
 
 
-def _rows_per_chunk(manifest: Manifest, target_bytes: float = 64e6) -> int:
-    """Rows per block so that one block of every stack, as int32, stays near ``target_bytes``."""
-    frames = sum(s.shape[0] for s in manifest.stacks)
-    width = manifest.shape[1]
-    return int(max(1, min(manifest.shape[0], target_bytes // (4 * frames * width))))
+class PixelMapper(NamedTuple):
+    """One channel's fitted model as arrays: the argument of the compiled streaming pass."""
+
+    estimator: np.ndarray  # (P, S): theta_hat = estimator @ means (weighted least squares)
+    stat_weights: np.ndarray  # (S,): (n_s - 1) / v_s, the noisy-pixel statistic's weights
+    noise: np.ndarray  # NoiseMixture.constants()
+    components: tuple  # (normal, defect) population components, diagonalised against the design
+    log_weights: np.ndarray  # (2,)
+    normal_mean: np.ndarray  # (P,)
+    normal_spread: np.ndarray  # (P,)
+
+
+#: defect code by the parameter that departs most from the normal population, when it departs low / not / high
+_CODES = {"offset_dn": (5, 5, 5), "dark_current_dn_s": (5, 5, 1), "relative_gain": (2, 4, 4)}
+
+
+def map_pixels(m: PixelMapper, means, variances, names: tuple[str, ...], xp=np):
+    """Every pixel's posterior summaries from its stack means and variances (S, N) -> (outputs, N) float32.
+
+    The outputs, in :meth:`MapModel.outputs` order: per parameter its posterior
+    mean, sd and least-squares estimate; the offset-dark-current correlation;
+    the defect and noisy probabilities, the noise scale and the defect code.
+    ``xp`` is the array module: numpy, or ``jax.numpy`` in the compiled pass
+    (:mod:`bayescal.maps.kernel`).
+    """
+    theta_hat = m.estimator @ means  # (P, N): pixels last, see population.Component.terms
+    stat = m.stat_weights @ variances
+    q_noisy = noisy_probability(stat, m.noise, xp)
+    phi = 1.0 + q_noisy * (m.noise[1] - 1.0)
+    post = mixture_posterior(m.components, m.log_weights, theta_hat, phi, xp)
+    sd = xp.sqrt(xp.stack([post.cov[j, j] for j in range(len(names))]))
+    out = []
+    for j, _ in enumerate(names):
+        out += [post.mean[j], sd[j], theta_hat[j]]
+    if "dark_current_dn_s" in names:
+        out.append(post.cov[0, 1] / xp.maximum(sd[0] * sd[1], 1e-300))
+    p_defect = 1.0 - (1.0 - post.defect_probability) * (1.0 - q_noisy)
+    # defect code: the parameter that departs most from the normal population, or noisy
+    dev = (post.mean - m.normal_mean[:, None]) / m.normal_spread[:, None]
+    which = xp.argmax(xp.abs(dev), axis=0)
+    sign = xp.sign(xp.take_along_axis(dev, which[None, :], axis=0)[0]).astype(int)
+    table = xp.asarray(np.array([_CODES[n] for n in names], float))
+    code = table[which, sign + 1]
+    code = xp.where(q_noisy > post.defect_probability, 3.0, code)
+    out += [p_defect, q_noisy, phi, xp.where(p_defect > DEFECT_THRESHOLD, code, 0.0)]
+    return xp.stack(out).astype(np.float32)
+
+
+def _rows_per_chunk(manifest: Manifest, target_pixels: int = 1 << 20) -> int:
+    """Rows per block (and per chunk of the store): about ``target_pixels`` pixels, a 4 MB chunk of each
+    float32 map, so the store's per-chunk cost stays small beside the pixels' work.  The frames are read
+    in sub-blocks (:mod:`bayescal.maps.kernel`), so the block size does not set the memory."""
+    return int(max(1, min(manifest.shape[0], target_pixels // manifest.shape[1])))
 
 
 def _robust_variance(var: np.ndarray, frames: int, keep: float = 0.995) -> float:
@@ -143,8 +179,14 @@ def _stack_variances(variances: np.ndarray, frames: np.ndarray, rounds: int = 3)
     return var, fit_noise_mixture(stat, dof)
 
 
-def _sample_rows(height: int, rows: int, fit_pixels: int, width: int) -> list[tuple[int, int]]:
-    """Evenly spaced row blocks holding about ``fit_pixels`` pixels (every block when the sensor is small)."""
+#: the population's subsample is spread over at least this many bands of rows
+SAMPLE_BANDS = 32
+
+
+def _sample_rows(height: int, step: int, fit_pixels: int, width: int) -> list[tuple[int, int]]:
+    """Evenly spaced bands of rows (whole colour cells) holding about ``fit_pixels`` pixels, at least
+    :data:`SAMPLE_BANDS` of them (every row when the sensor is small)."""
+    rows = _even(max(1, fit_pixels // (SAMPLE_BANDS * width)), step)
     blocks = [(r, min(r + rows, height)) for r in range(0, height, rows)]
     want = max(1, int(np.ceil(fit_pixels / (rows * width))))
     if want >= len(blocks):
@@ -157,7 +199,7 @@ def _statistics(manifest: Manifest, r0: int, r1: int) -> tuple[np.ndarray, np.nd
     """Means and variances (S, rows, W) of rows ``r0:r1`` of every stack, and each stack's saturated fraction."""
     means, variances, saturated = [], [], []
     for stack in manifest.stacks:
-        block = stack[:, r0:r1]
+        block = stack.read_rows(r0, r1)
         m, v = block_statistics(block)
         means.append(m)
         variances.append(v)
@@ -177,6 +219,11 @@ class SensorModel:
 
     def outputs(self) -> list[str]:
         return next(iter(self.models.values())).outputs()
+
+    @functools.cached_property
+    def mappers(self) -> dict[str, PixelMapper]:
+        """Each channel's :meth:`MapModel.mapper`, computed once."""
+        return {name: m.mapper() for name, m in self.models.items()}
 
 
 def _plane_values(parts, index: int, step: int, dy: int, dx: int) -> np.ndarray:
@@ -199,7 +246,7 @@ def fit_map_model(
     step, planes = cfa_planes(cfa, channel)
     rows = _even(rows_per_chunk or _rows_per_chunk(manifest), step)
     parts = [
-        _statistics(manifest, r0, r1) for r0, r1 in _sample_rows(manifest.shape[0], rows, fit_pixels, manifest.shape[1])
+        _statistics(manifest, r0, r1) for r0, r1 in _sample_rows(manifest.shape[0], step, fit_pixels, manifest.shape[1])
     ]
     saturated = np.max(np.stack([p[2] for p in parts]), axis=0)
     table = manifest.table
@@ -331,20 +378,3 @@ def _thermal(table, exposures, flat_signal, var, means) -> dict | None:
         "doubling_c": td,
         "doubling_c_se": td * se_log,
     }
-
-
-def block_maps(model: SensorModel, stacks, r0: int, r1: int) -> np.ndarray:
-    """Rows ``r0:r1``: read every stack's frames, reduce, and map each pixel -> (outputs, rows, W)."""
-    stats = [block_statistics(s[:, r0:r1]) for s in stacks]
-    means = np.stack([m for m, _ in stats])
-    variances = np.stack([v for _, v in stats])
-    rows, width = means.shape[1:]
-    out = np.empty((len(model.outputs()), rows, width), np.float32)
-    k = model.step
-    for name, dy, dx in model.planes:
-        sub = means[:, dy::k, dx::k]
-        maps = model.models[name].block(
-            sub.reshape(len(stacks), -1), variances[:, dy::k, dx::k].reshape(len(stacks), -1)
-        )
-        out[:, dy::k, dx::k] = maps.reshape(-1, *sub.shape[1:])
-    return out
