@@ -84,15 +84,19 @@ def main() -> None:
     t = time.perf_counter()
     fit_fleet(fleet, spec, fits=fits, seed=0)
     row["stage2_cold_s"] = time.perf_counter() - t
-    warm, diags = [], []
+    warm, diags, kept = [], [], []
     for seed in range(1, args.repeats + 1):
         t = time.perf_counter()
         result = fit_fleet(fleet, spec, fits=fits, seed=seed)
         warm.append(time.perf_counter() - t)
         diags.append(result.draws.diagnostics)
+        kept.append(result.draws.log_likelihood.shape[1])
+        print(f"seed {seed}: {warm[-1]:.1f} s, {kept[-1]} draws per chain, {result.draws.diagnostics}", flush=True)
     row["stage2_warm_s"] = float(np.median(warm))
     row["stage2_over_stage1_warm"] = row["stage2_warm_s"] / row["stage1_warm_s"]
     row["draws"] = f"{spec.fleet.chains} x {spec.fleet.draws} (+{spec.fleet.warmup} warmup)"
+    row["warm_runs_s"] = " ".join(f"{t:.1f}" for t in warm)
+    row["draws_per_chain_kept"] = " ".join(str(k) for k in kept)  # more than draws: continued for the ESS
     row["divergences"] = max(d["divergences"] for d in diags)
     row["max_rhat"] = max(d["max_rhat"] for d in diags)
     row["min_ess"] = min(min(d["min_ess_bulk"], d["min_ess_tail"]) for d in diags)

@@ -516,8 +516,8 @@ def _factor(plan, sc, kappa, arrays, xp):
     l_m = xp.linalg.cholesky(p_mm)
     p_gm = g_gm * sc[..., None, :]  # (..., K, M, G, B)
     bm_s = sc * arrays["b_m"] * w[..., None, None]
-    x_mg = _solve_chol(l_m, xp.swapaxes(p_gm, -1, -2))  # (..., K, M, B, G)
-    x_b = _solve_chol(l_m, bm_s)
+    x_mg = _solve_chol(l_m, xp.swapaxes(p_gm, -1, -2), xp)  # (..., K, M, B, G)
+    x_b = _solve_chol(l_m, bm_s, xp)
     schur = (
         arrays["g_gg"] * w[..., None, None]
         + _diag(1.0 / arrays["prior_var_g"], xp)
@@ -532,11 +532,20 @@ def _diag(v, xp):
     return v[..., :, None] * xp.eye(v.shape[-1])
 
 
-def _solve_chol(low, b):
-    """``(L L')^-1 b`` for batched lower factors (NumPy); ``b`` a vector or a matrix per factor."""
+def _solve_lower(low, b, xp, transpose: bool = False):
+    """``L^-1 b`` (``L'^-1 b`` with ``transpose``) for batched lower factors and matrix ``b``."""
+    if xp is np:
+        return np.linalg.solve(np.swapaxes(low, -1, -2) if transpose else low, b)
+    import jax.scipy.linalg as jsl
+
+    return jsl.solve_triangular(low, b, lower=True, trans=1 if transpose else 0)
+
+
+def _solve_chol(low, b, xp=np):
+    """``(L L')^-1 b`` for batched lower factors; ``b`` a vector or a matrix per factor."""
     vector = b.ndim == low.ndim - 1
     rhs = b[..., None] if vector else b
-    out = np.linalg.solve(np.swapaxes(low, -1, -2), np.linalg.solve(low, rhs))
+    out = _solve_lower(low, _solve_lower(low, rhs, xp), xp, transpose=True)
     return out[..., 0] if vector else out
 
 
@@ -546,16 +555,34 @@ def conditional_draws(plan: Plan, hyper: dict, arrays: dict, rng: np.random.Gene
     ``hyper``: scale name -> ``(S, size)``.  Returns the global coefficients ``(S, K, G)``
     and the per-camera ones ``(S, K, M, B)`` (already multiplied by their scales).
     """
+    sc, kappa = draw_scales(plan, hyper, arrays)
+    z_g, z_m = standard_normals(plan, sc.shape[0], rng)
+    return latent_draws(plan, sc, kappa, arrays, z_g, z_m)
+
+
+def draw_scales(plan: Plan, hyper: dict, arrays: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Each draw's slot scales ``(S, K, M, B)`` and excess dispersion ``(S, K)``."""
     s = next(iter(hyper.values())).shape[0] if hyper else 1
     sc = np.stack([block_scales(plan, {k: v[i] for k, v in hyper.items()}) for i in range(s)])  # (S, K, B)
     sc = sc[:, :, None, :] * arrays["active"][None]  # (S, K, M, B)
     kappa = hyper["excess"] if "excess" in hyper else np.ones((s, plan.n_kinds))
-    bm_s, x_b, l_m, l_s, b_g2 = _factor(plan, sc, kappa, arrays, np)
-    z_g = rng.standard_normal(b_g2.shape)
-    g = _solve_chol(l_s, b_g2) + np.linalg.solve(np.swapaxes(l_s, -1, -2), z_g[..., None])[..., 0]
+    return sc, kappa
+
+
+def standard_normals(plan: Plan, s: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The standard normal variates of ``s`` conditional draws: global ``(S, K, G)``, per camera ``(S, K, M, B)``."""
+    z_g = rng.standard_normal((s, plan.n_kinds, plan.n_global))
+    z_m = rng.standard_normal((s, plan.n_kinds, plan.n_cameras, plan.block))
+    return z_g, z_m
+
+
+def latent_draws(plan: Plan, sc, kappa, arrays: dict, z_g, z_m, xp=np):
+    """The conditional draws of :func:`conditional_draws` from given standard normals, in the array
+    module ``xp`` (numpy, or ``jax.numpy`` compiled: :func:`bayescal.fleet.sampling.sample_fleet`)."""
+    bm_s, x_b, l_m, l_s, b_g2 = _factor(plan, sc, kappa, arrays, xp)
+    g = _solve_chol(l_s, b_g2, xp) + _solve_lower(l_s, z_g[..., None], xp, transpose=True)[..., 0]
     w = 1.0 / kappa
     p_gm = arrays["g_gm"] * w[:, :, None, None, None] * sc[..., None, :]
-    rhs = bm_s - np.einsum("skmgb,skg->skmb", p_gm, g)
-    z_m = rng.standard_normal(rhs.shape)
-    cam = _solve_chol(l_m, rhs) + np.linalg.solve(np.swapaxes(l_m, -1, -2), z_m[..., None])[..., 0]
+    rhs = bm_s - xp.einsum("skmgb,skg->skmb", p_gm, g)
+    cam = _solve_chol(l_m, rhs, xp) + _solve_lower(l_m, z_m[..., None], xp, transpose=True)[..., 0]
     return g, sc * cam

@@ -15,7 +15,15 @@ from functools import lru_cache
 import numpy as np
 
 from bayescal._config import computes
-from bayescal.fleet.model import FleetData, Plan, conditional_draws, log_marginal
+from bayescal.fleet.model import (
+    FleetData,
+    Plan,
+    conditional_draws,
+    draw_scales,
+    latent_draws,
+    log_marginal,
+    standard_normals,
+)
 from bayescal.model.spec import FleetSpec
 
 __all__ = ["sample_fleet", "FleetDraws", "loo_of", "unit_log_likelihood"]
@@ -61,8 +69,14 @@ def _unpack(plan: Plan, u, xp=np) -> dict:
 
 
 @lru_cache(maxsize=16)
-def _chain_program(plan: Plan, warmup: int, draws: int, target: float):
-    """``run(key, u0, arrays)``: one chain (init, warmup, draws) compiled once per structure."""
+def _chain_program(plan: Plan, warmup: int, draws: int, target: float, extend: bool = False):
+    """One chain compiled once per structure.
+
+    ``run(key, u0, arrays)``: init, warmup and ``draws`` draws; ``extend=True`` gives
+    ``run(key, u0, arrays, state)``: ``draws`` more draws from a chain's final state (its
+    adapted step size and mass matrix; adaptation has ended).  Both return the final state
+    and the draws' ``(z, diverging)``.
+    """
     import jax
     import jax.numpy as jnp
     from jax.scipy.stats import norm
@@ -79,23 +93,67 @@ def _chain_program(plan: Plan, warmup: int, draws: int, target: float):
             i += size
         return -(lp + log_marginal(plan, _unpack(plan, u, jnp), arrays))
 
-    def chain(key, u0, arrays):
-        init_kernel, sample_kernel = hmc(potential_fn=lambda u: potential(u, arrays), algo="NUTS")
-        state = init_kernel(u0, num_warmup=warmup, target_accept_prob=target, rng_key=key)
-        state, _ = jax.lax.scan(lambda st, _: (sample_kernel(st), None), state, None, length=warmup)
-
+    def draw_from(state, sample_kernel):
         def draw(st, _):
             st = sample_kernel(st)
             return st, (st.z, st.diverging)
 
-        _, out = jax.lax.scan(draw, state, None, length=draws)
-        return out
+        return jax.lax.scan(draw, state, None, length=draws)
 
-    return jax.jit(chain)
+    def chain(key, u0, arrays, state=None):
+        init_kernel, sample_kernel = hmc(potential_fn=lambda u: potential(u, arrays), algo="NUTS")
+        start = init_kernel(u0, num_warmup=warmup, target_accept_prob=target, rng_key=key)  # sets the kernel up
+        if state is None:
+            state, _ = jax.lax.scan(lambda st, _: (sample_kernel(st), None), start, None, length=warmup)
+        return draw_from(state, sample_kernel)
+
+    if extend:
+        return jax.jit(lambda key, u0, arrays, state: chain(key, u0, arrays, state))
+    return jax.jit(lambda key, u0, arrays: chain(key, u0, arrays))
 
 
-def _run_chains(plan: Plan, spec: FleetSpec, args: dict, seed: int) -> tuple[np.ndarray, int]:
-    """Every chain on a thread pool; unconstrained draws ``(chain, draw, dim)``."""
+#: conditional draws per call of the compiled program (its memory: ~80 kB per draw and camera)
+DRAW_CHUNK = 256
+
+
+@lru_cache(maxsize=16)
+def _latent_program(plan: Plan):
+    """``latent_draws`` compiled once per structure, for a chunk of :data:`DRAW_CHUNK` draws."""
+    import jax
+    import jax.numpy as jnp
+
+    return jax.jit(lambda sc, kappa, arrays, z_g, z_m: latent_draws(plan, sc, kappa, arrays, z_g, z_m, jnp))
+
+
+def _latents(plan: Plan, hyper: dict, args: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`.model.conditional_draws` (the same normal variates, so the same draws) by the compiled
+    program, in chunks of :data:`DRAW_CHUNK` draws (the last one padded)."""
+    import jax
+
+    sc, kappa = draw_scales(plan, hyper, args)
+    z_g, z_m = standard_normals(plan, sc.shape[0], rng)
+    program = _latent_program(plan)
+    arrays = jax.device_put(args)
+    s = sc.shape[0]
+    parts = []
+    for i in range(0, s, DRAW_CHUNK):
+        idx = np.minimum(np.arange(i, i + DRAW_CHUNK), s - 1)  # pad with the last draw
+        out = program(sc[idx], kappa[idx], arrays, z_g[idx], z_m[idx])
+        parts.append([np.asarray(o)[: min(DRAW_CHUNK, s - i)] for o in out])
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+
+def _run_chains(
+    plan: Plan, spec: FleetSpec, args: dict, seed: int, min_ess: float = 0.0, max_rhat: float = np.inf
+) -> tuple[np.ndarray, int]:
+    """Every chain on a thread pool; unconstrained draws ``(chain, draw, dim)``.
+
+    While the sampled scales' bulk or tail ESS is below ``min_ess`` or their R-hat above
+    ``max_rhat``, every chain continues
+    for another ``spec.draws`` draws, at most ``spec.extend`` times: a posterior ridge
+    (a drift that is either trend or walk) mixes slowly on some seeds, and more draws,
+    not a failed fit, are the remedy.
+    """
     from concurrent.futures import ThreadPoolExecutor
 
     import jax
@@ -107,21 +165,55 @@ def _run_chains(plan: Plan, spec: FleetSpec, args: dict, seed: int) -> tuple[np.
     keys = jax.random.split(k_chain, spec.chains)
     arrays = {k: jax.numpy.asarray(v) for k, v in args.items()}
     with ThreadPoolExecutor(max(1, min(THREADS, spec.chains))) as pool:
-        outs = list(pool.map(lambda c: jax.device_get(run(keys[c], u0[c], arrays)), range(spec.chains)))
-    z = np.stack([np.asarray(o[0]) for o in outs])
-    divergences = int(sum(np.sum(o[1]) for o in outs))
-    return z, divergences
+        # block in the thread: JAX dispatches asynchronously, and unblocked chains would queue on one core
+        outs = list(pool.map(lambda c: jax.block_until_ready(run(keys[c], u0[c], arrays)), range(spec.chains)))
+        states = [o[0] for o in outs]
+        z = [[np.asarray(o[1][0])] for o in outs]
+        divergences = int(sum(np.sum(np.asarray(o[1][1])) for o in outs))
+        more = _chain_program(plan, spec.warmup, spec.draws, spec.target_accept, extend=True)
+        for _ in range(spec.extend):
+            ess, rhat = _mixing(np.stack([np.concatenate(c) for c in z]))
+            if ess >= min_ess and rhat <= max_rhat:
+                break
+            outs = list(
+                pool.map(
+                    lambda c, st=states: jax.block_until_ready(more(keys[c], u0[c], arrays, st[c])), range(spec.chains)
+                )
+            )
+            states = [o[0] for o in outs]
+            for c, o in enumerate(outs):
+                z[c].append(np.asarray(o[1][0]))
+            divergences += int(sum(np.sum(np.asarray(o[1][1])) for o in outs))
+    return np.stack([np.concatenate(c) for c in z]), divergences
+
+
+def _mixing(z: np.ndarray) -> tuple[float, float]:
+    """The smallest bulk or tail ESS and the largest R-hat over the sampled scales ``(chain, draw, dim)``."""
+    import arviz as az
+    import xarray as xr
+
+    ds = xr.Dataset({"u": (("chain", "draw", "u_i"), z)})
+    ess = min(np.min(np.asarray(az.ess(ds, method=m)["u"])) for m in ("bulk", "tail"))
+    rhat = np.max(np.asarray(az.rhat(ds)["u"])) if z.shape[0] > 1 else -np.inf
+    return float(ess), float(rhat)
 
 
 @computes
-def sample_fleet(data: FleetData, plan: Plan, spec: FleetSpec, seed: int = 0) -> FleetDraws:
-    """Run NUTS on the scales, complete every draw, and judge the chains (R-hat, ESS, divergences)."""
+def sample_fleet(
+    data: FleetData, plan: Plan, spec: FleetSpec, seed: int = 0, min_ess: float = 0.0, max_rhat: float = np.inf
+) -> FleetDraws:
+    """Run NUTS on the scales, complete every draw, and judge the chains (R-hat, ESS, divergences).
+
+    The chains continue (``spec.extend`` times at most) while the scales' ESS is below ``min_ess``
+    or their R-hat above ``max_rhat``.
+    """
 
     args = data.arrays()
     chains, n = spec.chains, spec.draws
     sampled = plan.sampled()
     if sampled:
-        z, divergences = _run_chains(plan, spec, args, seed)
+        z, divergences = _run_chains(plan, spec, args, seed, min_ess, max_rhat)
+        n = z.shape[1]
         hyper = _unpack(plan, z.reshape(chains * n, -1))
     else:  # nothing to sample: the conditional draws are the posterior
         hyper = {}
@@ -131,7 +223,7 @@ def sample_fleet(data: FleetData, plan: Plan, spec: FleetSpec, seed: int = 0) ->
         g, cam = zip(*(conditional_draws(plan, {}, args, rng) for _ in range(chains * n)), strict=True)
         g, cam = np.concatenate(g), np.concatenate(cam)
     else:
-        g, cam = conditional_draws(plan, hyper, args, rng)
+        g, cam = _latents(plan, hyper, args, rng)
     draws = {k: v.reshape(chains, n, -1) for k, v in hyper.items()}
     draws |= {
         k: v.reshape((chains, n) + v.shape[1:]) for k, v in _named(plan, data, np.asarray(g), np.asarray(cam)).items()

@@ -145,6 +145,13 @@ class FleetSpec:
     it the line ties the sphere's per-campaign errors together and biased them (95 %
     intervals of the absolute gain covered 0.83-0.86 on the independent simulator). It is
     not extrapolated: the drift ahead is the cameras' trends, walk and jitter.
+
+    ``chains``, ``warmup``, ``draws``, ``target_accept``: NUTS on the scales; while their
+    bulk or tail ESS is below ``[inference] min_ess`` (or their R-hat above ``max_rhat``)
+    every chain continues for another
+    ``draws`` draws, ``extend`` times at most (the trend and walk spreads of the log gain
+    trade off along a ridge that mixes slowly on some seeds).  Target 0.8: on 4 seeds of
+    20 cameras its smallest tail ESS was 611 (0.9: 284), at 0.97x the leapfrog steps.
     """
 
     pooling: Literal["partial", "none", "complete"] = "partial"
@@ -163,7 +170,8 @@ class FleetSpec:
     chains: int = 4
     draws: int = 600
     warmup: int = 300
-    target_accept: float = 0.9
+    target_accept: float = 0.8
+    extend: int = 2
 
 
 @dataclass(frozen=True)
@@ -330,6 +338,7 @@ def _check_spec(spec: ModelSpec) -> None:
         (spec.fleet.chains >= 1 and spec.fleet.draws >= 10, "fleet needs chains >= 1 and draws >= 10"),
         (spec.fleet.warmup >= 10, f"fleet.warmup = {spec.fleet.warmup}; expected >= 10"),
         (0 < spec.fleet.target_accept < 1, "fleet.target_accept must be in (0, 1)"),
+        (spec.fleet.extend >= 0, f"fleet.extend = {spec.fleet.extend}; expected >= 0"),
         (0 <= spec.fleet.shared_error < 1, "fleet.shared_error must be in [0, 1)"),
         (spec.fleet.campaign_sd >= 0, "fleet.campaign_sd must be >= 0"),
     ]

@@ -226,6 +226,32 @@ def test_conditional_draws_match_the_dense_posterior_mean(small_fleet):
     assert np.all(np.abs(ratio - 1.0) < 0.1)
 
 
+def test_chains_continue_until_the_ess_target(small_fleet):
+    """Below the ESS target every chain continues from its adapted state, ``extend`` times at most,
+    and the compiled conditional draws equal numpy's for the same normal variates."""
+    from bayescal._config import numerics
+    from bayescal.fleet.model import draw_scales, latent_draws, standard_normals
+    from bayescal.fleet.sampling import _latents, sample_fleet
+
+    fleet = fleet_from_frame(_frame(small_fleet), source="small")
+    data, plan = fleet_data(_Fits(fleet, 2, np.random.default_rng(1)), FleetSpec(walk=False), 0.03)
+    spec = FleetSpec(walk=False, chains=2, warmup=40, draws=30, extend=2)
+    unreachable = sample_fleet(data, plan, spec, seed=1, min_ess=1e9)
+    met = sample_fleet(data, plan, spec, seed=1, min_ess=0.0)
+    assert unreachable.draws["sigma_camera"].shape[:2] == (2, 90)  # 30 draws, then 2 x 30 more
+    assert met.draws["sigma_camera"].shape[:2] == (2, 30)
+    # the extension continues the chains: their first 30 draws are the unextended run's
+    np.testing.assert_allclose(unreachable.draws["sigma_camera"][:, :30], met.draws["sigma_camera"], rtol=1e-7)
+    hyper = {k: v.reshape(-1, v.shape[-1])[:40] for k, v in met.draws.items() if k in plan.sampled()}
+    args = data.arrays()
+    with numerics():
+        g_jit, cam_jit = _latents(plan, hyper, args, np.random.default_rng(5))
+    sc, kappa = draw_scales(plan, hyper, args)
+    g, cam = latent_draws(plan, sc, kappa, args, *standard_normals(plan, 40, np.random.default_rng(5)))
+    np.testing.assert_allclose(g_jit, g, rtol=1e-6, atol=1e-9 * np.abs(g).max())
+    np.testing.assert_allclose(cam_jit, cam, rtol=1e-6, atol=1e-9 * np.abs(cam).max())
+
+
 # ---------------------------------------------------------------- a fleet with known truth
 def test_small_fleet_samples_cleanly_and_covers_the_truth(fitted):
     fleet, result, truth = fitted
