@@ -82,23 +82,23 @@ class LazyStack:
     def read_rows(self, r0: int, r1: int, out: np.ndarray | None = None) -> np.ndarray:
         """Rows ``r0:r1`` of every frame, ``(frames, r1 - r0, W)`` in native byte order, read with one
         positioned read per frame (several times faster than copying from a memory map, whose every
-        page faults on first touch).  ``out``, when given, is filled and returned."""
+        page faults on first touch).  ``out`` (native byte order), when given, is filled in place and
+        returned."""
         frames, height, width = self.shape
         if not 0 <= r0 < r1 <= height:
             raise IndexError(f"{self.path}: rows {r0}:{r1} outside 0:{height}")
-        dtype = self.dtype
+        native = self.dtype.newbyteorder("=")
         if out is None:
-            out = np.empty((frames, r1 - r0, width), dtype)
-        view = out.view(dtype)  # out may hold the native-order twin of a byte-swapped dtype
-        row_bytes = width * dtype.itemsize
+            out = np.empty((frames, r1 - r0, width), native)
+        row_bytes = width * native.itemsize
         with open(self.path, "rb", buffering=0) as fh:
             for f in range(frames):
                 fh.seek(self.offset + (f * height + r0) * row_bytes)
-                target = memoryview(view[f]).cast("B")
+                target = memoryview(out[f]).cast("B")
                 if fh.readinto(target) != len(target):
                     raise TableError(f"{self.path}: the file ends inside frame {f} (truncated?)")
-        if not dtype.isnative:
-            out = view.byteswap().view(dtype.newbyteorder("="))
+        if not self.dtype.isnative:  # the file's bytes are in the other order: swap them where they lie
+            out.byteswap(inplace=True)
         return out
 
 
