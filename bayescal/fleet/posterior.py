@@ -511,9 +511,7 @@ def fit_fleet(
         fits = fit_units(fleet, spec, backend, seed=seed, progress=progress)
     stage(f"stage two: the fleet hierarchy ({spec.fleet.pooling} pooling) by NUTS")
     data, plan = fleet_data(fits, spec.fleet, spec.sphere.common_rel)
-    draws = sample_fleet(
-        data, plan, spec.fleet, seed=seed, min_ess=spec.inference.min_ess, max_rhat=spec.inference.max_rhat
-    )
+    draws = sample_fleet(data, plan, spec.fleet, seed=seed, inference=spec.inference)
     units = fits.diagnostics.copy()
     units.insert(2, "years", data.years)
     for k, kind in enumerate(fits.kinds):

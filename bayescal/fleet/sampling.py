@@ -24,7 +24,7 @@ from bayescal.fleet.model import (
     log_marginal,
     standard_normals,
 )
-from bayescal.model.spec import FleetSpec
+from bayescal.model.spec import FleetSpec, InferenceSpec
 
 __all__ = ["sample_fleet", "FleetDraws", "loo_of", "unit_log_likelihood"]
 
@@ -144,12 +144,12 @@ def _latents(plan: Plan, hyper: dict, args: dict, rng: np.random.Generator) -> t
 
 
 def _run_chains(
-    plan: Plan, spec: FleetSpec, args: dict, seed: int, min_ess: float = 0.0, max_rhat: float = np.inf
+    plan: Plan, spec: FleetSpec, args: dict, seed: int, inference: InferenceSpec | None = None
 ) -> tuple[np.ndarray, int]:
     """Every chain on a thread pool; unconstrained draws ``(chain, draw, dim)``.
 
-    While the sampled scales' bulk or tail ESS is below ``min_ess`` or their R-hat above
-    ``max_rhat``, every chain continues
+    With ``inference``: while the sampled scales' bulk or tail ESS is below its ``min_ess``
+    or their R-hat above its ``max_rhat``, every chain continues
     for another ``spec.draws`` draws, at most ``spec.extend`` times: a posterior ridge
     (a drift that is either trend or walk) mixes slowly on some seeds, and more draws,
     not a failed fit, are the remedy.
@@ -171,9 +171,8 @@ def _run_chains(
         z = [[np.asarray(o[1][0])] for o in outs]
         divergences = int(sum(np.sum(np.asarray(o[1][1])) for o in outs))
         more = _chain_program(plan, spec.warmup, spec.draws, spec.target_accept, extend=True)
-        for _ in range(spec.extend):
-            ess, rhat = _mixing(np.stack([np.concatenate(c) for c in z]))
-            if ess >= min_ess and rhat <= max_rhat:
+        for _ in range(spec.extend if inference is not None else 0):
+            if _mixed(_convergence({"u": np.stack([np.concatenate(c) for c in z])}), inference):
                 break
             outs = list(
                 pool.map(
@@ -187,32 +186,21 @@ def _run_chains(
     return np.stack([np.concatenate(c) for c in z]), divergences
 
 
-def _mixing(z: np.ndarray) -> tuple[float, float]:
-    """The smallest bulk or tail ESS and the largest R-hat over the sampled scales ``(chain, draw, dim)``."""
-    import arviz as az
-    import xarray as xr
-
-    ds = xr.Dataset({"u": (("chain", "draw", "u_i"), z)})
-    ess = min(np.min(np.asarray(az.ess(ds, method=m)["u"])) for m in ("bulk", "tail"))
-    rhat = np.max(np.asarray(az.rhat(ds)["u"])) if z.shape[0] > 1 else -np.inf
-    return float(ess), float(rhat)
-
-
 @computes
 def sample_fleet(
-    data: FleetData, plan: Plan, spec: FleetSpec, seed: int = 0, min_ess: float = 0.0, max_rhat: float = np.inf
+    data: FleetData, plan: Plan, spec: FleetSpec, seed: int = 0, inference: InferenceSpec | None = None
 ) -> FleetDraws:
     """Run NUTS on the scales, complete every draw, and judge the chains (R-hat, ESS, divergences).
 
-    The chains continue (``spec.extend`` times at most) while the scales' ESS is below ``min_ess``
-    or their R-hat above ``max_rhat``.
+    With ``inference`` the chains continue (``spec.extend`` times at most) while the scales miss
+    its ``min_ess`` or ``max_rhat``.
     """
 
     args = data.arrays()
     chains, n = spec.chains, spec.draws
     sampled = plan.sampled()
     if sampled:
-        z, divergences = _run_chains(plan, spec, args, seed, min_ess, max_rhat)
+        z, divergences = _run_chains(plan, spec, args, seed, inference)
         n = z.shape[1]
         hyper = _unpack(plan, z.reshape(chains * n, -1))
     else:  # nothing to sample: the conditional draws are the posterior
@@ -236,7 +224,7 @@ def sample_fleet(
         ),
         kappa,
     )
-    diagnostics = {"divergences": divergences} | _convergence(draws, sampled, chains)
+    diagnostics = {"divergences": divergences} | _convergence({k: draws[k] for k in [*sampled, "theta"]})
     return FleetDraws(draws, ll.reshape(chains, n, -1), diagnostics)
 
 
@@ -302,20 +290,23 @@ def unit_log_likelihood(data: FleetData, theta_observed: np.ndarray, kappa: np.n
     return -0.5 * np.sum(z**2, axis=2) - logdet - 0.5 * k * c * np.log(2 * np.pi)
 
 
-def _convergence(draws: dict, sampled: dict, chains: int) -> dict:
-    import arviz as az
+def _convergence(values: dict[str, np.ndarray]) -> dict:
+    """Largest R-hat and smallest bulk and tail ESS over ``(chain, draw, ...)`` arrays (the numbers
+    of :func:`bayescal.inference.diagnostics.mcmc_diagnostics`; R-hat is NaN for one chain)."""
     import xarray as xr
 
-    names = list(sampled) + ["theta"]
-    ds = xr.Dataset({k: (("chain", "draw", f"{k}_i"), draws[k].reshape(draws[k].shape[:2] + (-1,))) for k in names})
-    rhat = (
-        float(np.nanmax([np.nanmax(np.asarray(v)) for v in az.rhat(ds).data_vars.values()]))
-        if chains > 1
-        else float("nan")
-    )
-    bulk = float(np.nanmin([np.nanmin(np.asarray(v)) for v in az.ess(ds, method="bulk").data_vars.values()]))
-    tail = float(np.nanmin([np.nanmin(np.asarray(v)) for v in az.ess(ds, method="tail").data_vars.values()]))
-    return {"max_rhat": rhat, "min_ess_bulk": bulk, "min_ess_tail": tail}
+    from bayescal.inference.diagnostics import mcmc_diagnostics
+    from bayescal.model.spec import InferenceSpec
+
+    ds = xr.Dataset({k: (("chain", "draw", f"{k}_i"), v.reshape(v.shape[:2] + (-1,))) for k, v in values.items()})
+    d = mcmc_diagnostics(ds, 0, InferenceSpec())
+    return {"max_rhat": d.max_rhat, "min_ess_bulk": d.min_ess_bulk, "min_ess_tail": d.min_ess_tail}
+
+
+def _mixed(d: dict, inference: InferenceSpec) -> bool:
+    """The chains' ESS and R-hat pass the verdict's bounds (R-hat unjudged for one chain, as in the fleet's verdict)."""
+    rhat_ok = not (np.isfinite(d["max_rhat"]) and d["max_rhat"] > inference.max_rhat)
+    return rhat_ok and min(d["min_ess_bulk"], d["min_ess_tail"]) >= inference.min_ess
 
 
 def loo_of(draws: FleetDraws) -> dict:

@@ -76,5 +76,7 @@ def mcmc_diagnostics(posterior: xr.Dataset, divergences: int, settings: Inferenc
 
 
 def _min_max(ds, reducer) -> float:
-    values = [np.asarray(ds[v]).ravel() for v in ds.data_vars]
-    return float(reducer(np.concatenate(values))) if values else float("nan")
+    """``reducer`` over every value of ``ds`` that is not NaN (NaN when none is: R-hat of one chain)."""
+    values = np.concatenate([np.asarray(ds[v]).ravel() for v in ds.data_vars] or [np.array([np.nan])])
+    values = values[~np.isnan(values)]
+    return float(reducer(values)) if values.size else float("nan")

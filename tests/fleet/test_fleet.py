@@ -25,7 +25,7 @@ from bayescal.fleet.model import (
     log_marginal,
 )
 from bayescal.fleet.units import fleet_from_frame
-from bayescal.model.spec import FleetSpec
+from bayescal.model.spec import FleetSpec, InferenceSpec
 from bayescal.validation.fleet import SMALL_FLEET, FleetDesign, simulate_fleet
 from tests.conftest import MODELS
 
@@ -236,8 +236,8 @@ def test_chains_continue_until_the_ess_target(small_fleet):
     fleet = fleet_from_frame(_frame(small_fleet), source="small")
     data, plan = fleet_data(_Fits(fleet, 2, np.random.default_rng(1)), FleetSpec(walk=False), 0.03)
     spec = FleetSpec(walk=False, chains=2, warmup=40, draws=30, extend=2)
-    unreachable = sample_fleet(data, plan, spec, seed=1, min_ess=1e9)
-    met = sample_fleet(data, plan, spec, seed=1, min_ess=0.0)
+    unreachable = sample_fleet(data, plan, spec, seed=1, inference=InferenceSpec(min_ess=1e9))
+    met = sample_fleet(data, plan, spec, seed=1, inference=InferenceSpec(min_ess=0.0, max_rhat=10.0))
     assert unreachable.draws["sigma_camera"].shape[:2] == (2, 90)  # 30 draws, then 2 x 30 more
     assert met.draws["sigma_camera"].shape[:2] == (2, 30)
     # the extension continues the chains: their first 30 draws are the unextended run's
