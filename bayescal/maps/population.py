@@ -281,8 +281,6 @@ class PixelPosterior:
 
     mean: np.ndarray  # (P, N)
     cov: np.ndarray  # (P, P, N)
-    normal_mean: np.ndarray  # (P, N): given the pixel is normal
-    normal_sd: np.ndarray  # (P, N)
     defect_probability: np.ndarray  # (N,): the wide component's responsibility
 
 
@@ -306,8 +304,7 @@ def mixture_posterior(comps, log_weights, theta, phi, xp=np) -> PixelPosterior:
     for k in range(2):
         d = terms[k][1] - mean
         cov = cov + q[k] * (comps[k].cov(terms[k][2], xp) + d[:, None, :] * d[None, :, :])
-    sd0 = xp.sqrt((comps[0].Uinv ** 2).T @ terms[0][2])
-    return PixelPosterior(mean, cov, terms[0][1], sd0, q[1])
+    return PixelPosterior(mean, cov, q[1])
 
 
 def combination_spread(

@@ -4,8 +4,9 @@
 whole pass with one task per row block that reads, maps and writes its rows
 (no pixel data passes through the scheduler), on threads (the compiled block
 program releases the GIL) or an active ``dask.distributed`` client.  Maps are
-stored in chunks of whole row blocks, compressed with LZ4 (several times
-faster to write than zstd, for noisy float maps nearly as small).
+stored in chunks of whole row blocks, compressed with LZ4 (1.6x faster to
+write than zstd level 1 in one chunk-writing test, 8 % larger on 6 Mpix of
+simulated maps; in the whole pass the two differed by less than the noise).
 """
 
 from __future__ import annotations
