@@ -20,23 +20,18 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from fleet_pooling import simulated_fleet  # run as a script: its folder is on the path
 
 from bayescal import load_spec
 from bayescal._config import enable_numerics
 from bayescal.fleet.stage1 import fit_units
-from bayescal.fleet.units import fleet_from_frame
 from bayescal.report.text import markdown_table
-from bayescal.validation.fleet import FleetDesign, simulate_fleet
 
 ROOT = Path(__file__).resolve().parents[1]
-LEVELS = {3: (2, 6, 10), 6: (0, 2, 4, 6, 8, 10), 12: tuple(range(12))}
 
 
 def whitened(n_cameras: int, n_levels: int, seed: int, spec) -> dict:
-    names = tuple(f"SN{i + 1:03d}" for i in range(n_cameras))
-    design = FleetDesign(n_cameras=n_cameras, brief=names if n_levels < 12 else (), brief_levels=LEVELS[n_levels])
-    table, truth = simulate_fleet(design, seed=seed)
-    fleet = fleet_from_frame(table.astype(str), source=f"fleet {n_cameras}x{n_levels} seed {seed}")
+    fleet, truth = simulated_fleet(n_cameras, n_levels, seed)  # the pooling benchmark's fleets
     fits = fit_units(fleet, spec, "laplace", seed=seed)
     c_n = len(fits.channels)
     z, corr = [], []

@@ -37,11 +37,16 @@ ROOT = Path(__file__).resolve().parents[1]
 LEVELS = {3: (2, 6, 10), 6: (0, 2, 4, 6, 8, 10), 12: tuple(range(12))}
 
 
-def run(n_cameras: int, n_levels: int, seed: int, spec) -> tuple[list[dict], dict]:
+def simulated_fleet(n_cameras: int, n_levels: int, seed: int):
+    """A fleet from the independent simulator, every camera swept over ``n_levels`` levels, and its truth."""
     names = tuple(f"SN{i + 1:03d}" for i in range(n_cameras))
     design = FleetDesign(n_cameras=n_cameras, brief=names if n_levels < 12 else (), brief_levels=LEVELS[n_levels])
     table, truth = simulate_fleet(design, seed=seed)
-    fleet = fleet_from_frame(table.astype(str), source=f"fleet {n_cameras}x{n_levels} seed {seed}")
+    return fleet_from_frame(table.astype(str), source=f"fleet {n_cameras}x{n_levels} seed {seed}"), truth
+
+
+def run(n_cameras: int, n_levels: int, seed: int, spec) -> tuple[list[dict], dict]:
+    fleet, truth = simulated_fleet(n_cameras, n_levels, seed)
     t0 = time.perf_counter()
     fits = fit_units(fleet, spec, "laplace", seed=seed)
     t1 = time.perf_counter()
