@@ -28,7 +28,7 @@ import pandas as pd
 
 from bayescal._config import computes
 from bayescal.errors import PosteriorError, SpecError
-from bayescal.fleet.model import FleetData, Plan, fleet_data
+from bayescal.fleet.model import FleetData, Plan, excess_of, fleet_data
 from bayescal.fleet.sampling import FleetDraws, loo_of, sample_fleet
 from bayescal.fleet.stage1 import UnitFits, fit_units
 from bayescal.fleet.units import DAYS_PER_YEAR, FleetTable
@@ -40,6 +40,8 @@ __all__ = ["FleetFit", "fit_fleet", "compare_pooling"]
 FLEET_FILE = "fleet.nc"
 #: sqrt(kappa) above which the units' scatter fails the fit (their own intervals 3x too narrow)
 EXCESS_LIMIT = 3.0
+#: the directions of a unit's error with their own excess (:func:`~.model.excess_of`), as reported
+DIRECTIONS = ("channels together", "channels apart")
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,13 +96,14 @@ class FleetFit:
         for _, r in bad.iterrows():
             out.append(f"unit {r['camera']} {r['campaign'] or ''} did not converge in stage one")
         if "excess" in self.draws.draws:
-            root = np.sqrt(np.median(self._flat("excess"), axis=0))
-            for kind, r in zip(self.kinds, root, strict=True):
-                if r > EXCESS_LIMIT:
-                    out.append(
-                        f"the units' {kind} estimates scatter {r:.1f}x more than their own intervals allow "
-                        "(the channel model or the hierarchy does not describe these cameras)"
-                    )
+            root = np.sqrt(np.median(self._excess(), axis=0))  # (K, D)
+            for kind, roots in zip(self.kinds, root, strict=True):
+                for where, r in zip(DIRECTIONS, roots, strict=False):
+                    if r > EXCESS_LIMIT:
+                        out.append(
+                            f"the units' {kind} estimates scatter {r:.1f}x more than their own intervals allow "
+                            f"with the {where} (the channel model or the hierarchy does not describe these cameras)"
+                        )
         return out
 
     @property
@@ -125,6 +128,10 @@ class FleetFit:
     def _physical(self, theta: np.ndarray) -> np.ndarray:
         """Standardised ``(..., K, C)`` to physical units."""
         return self.data.center + self.data.scale[:, None] * theta
+
+    def _excess(self) -> np.ndarray:
+        """Draws of the excess dispersion, ``(S, K, D)``."""
+        return excess_of(self.plan, {"excess": self._flat("excess")})
 
     def _flat(self, name: str) -> np.ndarray:
         a = self.draws.draws[name]
@@ -318,7 +325,8 @@ class FleetFit:
                 if "jitter_sd" in d:
                     entries["campaign jitter"] = self._flat("jitter_sd")[:, k] * scale[k]
             if "excess" in d:
-                entries["interval inflation sqrt(kappa)"] = np.sqrt(self._flat("excess")[:, k])
+                for where, kappa in zip(DIRECTIONS, np.moveaxis(self._excess()[:, k], -1, 0), strict=False):
+                    entries[f"interval inflation sqrt(kappa), {where}"] = np.sqrt(kappa)
             for name, v in entries.items():
                 lo, med, hi = np.quantile(v, [0.025, 0.5, 0.975])
                 rows.append({"quantity": kind, "parameter": name, "median": med, "q2.5": lo, "q97.5": hi})
@@ -547,7 +555,7 @@ def compare_pooling(fleet: FleetTable, spec: ModelSpec, fits: UnitFits, seed: in
     for pooling in ("none", "partial", "complete"):
         s = spec.replace(fleet={"pooling": pooling})
         fit = fit_fleet(fleet, s, seed=seed, fits=fits)
-        loo = loo_of(fit.draws)
+        loo = loo_of(fit.plan, fit.data, fit.draws)
         rows[pooling] = {k: v for k, v in loo.items() if k != "pointwise"} | {
             "divergences": fit.draws.diagnostics["divergences"],
             "_pointwise": loo["pointwise"],

@@ -9,7 +9,7 @@ data as arguments, and chains run vectorised.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -20,8 +20,10 @@ from bayescal.fleet.model import (
     Plan,
     conditional_draws,
     draw_scales,
+    excess_of,
     latent_draws,
     log_marginal,
+    scale_directions,
     standard_normals,
 )
 from bayescal.model.spec import FleetSpec, InferenceSpec
@@ -38,7 +40,7 @@ class FleetDraws:
     """
 
     draws: dict[str, np.ndarray]
-    log_likelihood: np.ndarray  # (chain, draw, unit)
+    log_likelihood: np.ndarray  # (chain, draw, unit), given each draw's latents (loo_of integrates them out)
     diagnostics: dict
 
 
@@ -148,10 +150,11 @@ def _run_chains(
 ) -> tuple[np.ndarray, int]:
     """Every chain on a thread pool; unconstrained draws ``(chain, draw, dim)``.
 
-    With ``inference``: while the sampled scales' bulk or tail ESS is below its ``min_ess``
-    or their R-hat above its ``max_rhat``, every chain continues
-    for another ``spec.draws`` draws, at most ``spec.extend`` times: a posterior ridge
-    (a drift that is either trend or walk) mixes slowly on some seeds, and more draws,
+    With ``inference``: while the sampled scales' bulk or tail ESS (of the scales, as the
+    verdict judges them, not their logs) is below its ``min_ess`` or their R-hat above its
+    ``max_rhat``, every chain continues for another ``spec.draws`` draws, at most
+    ``spec.extend`` times: a posterior ridge (a drift that is either trend or walk) mixes
+    slowly on some seeds, and more draws,
     not a failed fit, are the remedy.
     """
     from concurrent.futures import ThreadPoolExecutor
@@ -172,7 +175,8 @@ def _run_chains(
         divergences = int(sum(np.sum(np.asarray(o[1][1])) for o in outs))
         more = _chain_program(plan, spec.warmup, spec.draws, spec.target_accept, extend=True)
         for _ in range(spec.extend if inference is not None else 0):
-            if _mixed(_convergence({"u": np.stack([np.concatenate(c) for c in z])}), inference):
+            so_far = np.stack([np.concatenate(c) for c in z])
+            if _mixed(_convergence(_unpack(plan, so_far)), inference):  # the scales as the verdict judges them
                 break
             outs = list(
                 pool.map(
@@ -193,14 +197,21 @@ def sample_fleet(
     """Run NUTS on the scales, complete every draw, and judge the chains (R-hat, ESS, divergences).
 
     With ``inference`` the chains continue (``spec.extend`` times at most) while the scales miss
-    its ``min_ess`` or ``max_rhat``.
+    its ``min_ess`` or ``max_rhat``, and chains with a divergent transition are run again (new
+    chains) at its ``retry_target_accept``, as a unit's own NUTS fit is; the diagnostics then
+    say ``first_divergences`` and ``retried_at``.
     """
 
     args = data.arrays()
     chains, n = spec.chains, spec.draws
     sampled = plan.sampled()
+    first = None
     if sampled:
         z, divergences = _run_chains(plan, spec, args, seed, inference)
+        retry = inference.retry_target_accept if inference is not None else 0.0
+        if divergences and retry > spec.target_accept:  # new chains with smaller steps, as a unit's fit does
+            first = divergences
+            z, divergences = _run_chains(plan, replace(spec, target_accept=retry), args, seed + 1, inference)
         n = z.shape[1]
         hyper = _unpack(plan, z.reshape(chains * n, -1))
     else:  # nothing to sample: the conditional draws are the posterior
@@ -213,11 +224,11 @@ def sample_fleet(
     else:
         g, cam = _latents(plan, hyper, args, rng)
     draws = {k: v.reshape(chains, n, -1) for k, v in hyper.items()}
-    draws |= {
-        k: v.reshape((chains, n) + v.shape[1:]) for k, v in _named(plan, data, np.asarray(g), np.asarray(cam)).items()
-    }
-    kappa = hyper.get("excess", np.ones((chains * n, plan.n_kinds)))
+    kappa = excess_of(plan, hyper) if "excess" in hyper else np.ones((chains * n, plan.n_kinds, plan.n_directions))
+    named = _named(plan, data, np.asarray(g), np.asarray(cam), kappa)
+    draws |= {k: v.reshape((chains, n) + v.shape[1:]) for k, v in named.items()}
     ll = unit_log_likelihood(
+        plan,
         data,
         draws["unit_reported" if plan.shared else "theta_observed"].reshape(
             (chains * n,) + draws["theta_observed"].shape[2:]
@@ -225,13 +236,17 @@ def sample_fleet(
         kappa,
     )
     diagnostics = {"divergences": divergences} | _convergence({k: draws[k] for k in [*sampled, "theta"]})
+    if first is not None:  # the retry's diagnostics decide the verdict; the first run's count is kept
+        diagnostics["first_divergences"] = first
+        diagnostics["retried_at"] = inference.retry_target_accept
     return FleetDraws(draws, ll.reshape(chains, n, -1), diagnostics)
 
 
-def _named(plan: Plan, data: FleetData, g: np.ndarray, cam: np.ndarray) -> dict[str, np.ndarray]:
+def _named(plan: Plan, data: FleetData, g: np.ndarray, cam: np.ndarray, kappa: np.ndarray) -> dict[str, np.ndarray]:
     """The latents by name: ``mu (S, K, C)``, ``camera_level (S, K, M, C)``, ``rate_mean (S, 2)``,
     ``rate (S, 2, M)``, ``walk (S, 2, U)``, ``sphere_log_scale (S, J)``, ``theta`` and
-    ``theta_observed (S, K, U, C)`` (the sphere's factor added to the log gain)."""
+    ``theta_observed (S, K, U, C)`` (the sphere's factor added to the log gain); ``kappa``
+    ``(S, K, D)`` scales the camera's shared error (``T L e``)."""
     c_n = plan.n_channels
     mu = g[:, :, :c_n]
     level = mu[:, :, None, :] + cam[:, :, :, :1] + cam[:, :, :, 1 : 1 + c_n]  # (S, K, M, C)
@@ -265,7 +280,8 @@ def _named(plan: Plan, data: FleetData, g: np.ndarray, cam: np.ndarray) -> dict[
         state = g[:, 0, c_n + 1 + plan.n_spheres :]
         out["campaign_state"] = state
     if plan.shared:  # the camera's repeating error: not the camera, but in what its units report
-        out["shared_error"] = np.einsum("kmcd,skmd->skmc", data.shared_chol, cam[:, :, :, plan.shared_base :])
+        unscaled = np.einsum("kmcd,skmd->smkc", data.shared_chol, cam[:, :, :, plan.shared_base :])
+        out["shared_error"] = np.swapaxes(scale_directions(plan, unscaled, kappa[:, None]), 1, 2)  # (S, K, M, C)
     out["theta"] = theta
     observed = theta.copy()
     observed[:, 0] += sphere[:, data.sphere][..., None]
@@ -277,15 +293,17 @@ def _named(plan: Plan, data: FleetData, g: np.ndarray, cam: np.ndarray) -> dict[
     return out
 
 
-def unit_log_likelihood(data: FleetData, theta_observed: np.ndarray, kappa: np.ndarray) -> np.ndarray:
-    """``log N(y_u | theta_u, kappa Sigma_u)`` per draw and unit, ``(S, U)``."""
+def unit_log_likelihood(plan: Plan, data: FleetData, theta_observed: np.ndarray, kappa: np.ndarray) -> np.ndarray:
+    """``log N(y_u | theta_u, T Sigma_u T)`` per draw and unit, ``(S, U)`` (``kappa`` ``(S, K, D)``)."""
     s, k, u, c = theta_observed.shape
-    resid = data.y[None] - np.transpose(theta_observed, (0, 2, 1, 3)).reshape(s, u, k * c)
-    root = np.sqrt(np.repeat(kappa, c, axis=1))  # (S, KC)
+    resid = data.y.reshape(1, u, k, c) - np.transpose(theta_observed, (0, 2, 1, 3))
+    white = scale_directions(plan, resid, kappa[:, None], inverse=True).reshape(s, u, k * c)  # T^-1 r
     inv_l = np.linalg.inv(data.chol)  # (U, KC, KC)
-    z = np.einsum("uqr,sur->suq", inv_l, resid / root[:, None, :])
+    z = np.einsum("uqr,sur->suq", inv_l, white)
+    n_dir = data.n_rows / plan.n_units  # values per unit in each direction, (K, D)
     logdet = (
-        np.sum(np.log(np.diagonal(data.chol, axis1=1, axis2=2)), axis=1)[None] + np.sum(np.log(root), axis=1)[:, None]
+        np.sum(np.log(np.diagonal(data.chol, axis1=1, axis2=2)), axis=1)[None]
+        + 0.5 * np.sum(n_dir * np.log(kappa), axis=(1, 2))[:, None]
     )
     return -0.5 * np.sum(z**2, axis=2) - logdet - 0.5 * k * c * np.log(2 * np.pi)
 
@@ -309,17 +327,32 @@ def _mixed(d: dict, inference: InferenceSpec) -> bool:
     return rhat_ok and min(d["min_ess_bulk"], d["min_ess_tail"]) >= inference.min_ess
 
 
-def loo_of(draws: FleetDraws) -> dict:
-    """PSIS leave-one-unit-out: ``elpd_loo``, its ``se``, ``p_loo`` and units with Pareto k > 0.7."""
+def loo_of(plan: Plan, data: FleetData, draws: FleetDraws) -> dict:
+    """PSIS leave-one-unit-out: ``elpd_loo``, its ``se``, ``p_loo`` and units with Pareto k > 0.7.
+
+    Each draw of the scales contributes ``log p(y_u | y_-u, h)`` with every latent integrated
+    out (:mod:`.loo`), so the importance weights only move the scales; ``p_loo`` is the
+    log pointwise predictive density of the draws' conditional likelihood minus ``elpd_loo``.
+    """
     import arviz as az
 
+    from bayescal.fleet.loo import loo_predictive
+
     ll = draws.log_likelihood
-    tree = az.from_dict({"posterior": {"dummy": np.zeros(ll.shape[:2])}, "log_likelihood": {"y": ll}})
+    chains, n = ll.shape[:2]
+    hyper = {k: draws.draws[k].reshape(chains * n, -1) for k in plan.sampled()}
+    sc, kappa = draw_scales(plan, hyper, data.arrays())
+    if not hyper:  # nothing sampled: one set of scales for every draw
+        sc, kappa = np.repeat(sc, chains * n, axis=0), np.repeat(kappa, chains * n, axis=0)
+    pred = loo_predictive(plan, data, sc, kappa).reshape(chains, n, -1)
+    tree = az.from_dict({"posterior": {"dummy": np.zeros((chains, n))}, "log_likelihood": {"y": pred}})
     loo = az.loo(tree, pointwise=True)
+    flat = ll.reshape(chains * n, -1)
+    lppd = float(np.sum(np.logaddexp.reduce(flat, axis=0) - np.log(flat.shape[0])))
     return {
         "elpd_loo": float(loo.elpd),
         "se": float(loo.se),
-        "p_loo": float(loo.p),
+        "p_loo": lppd - float(loo.elpd),
         "n_high_k": int(np.sum(np.asarray(loo.pareto_k) > 0.7)),
         "pointwise": np.asarray(loo.elpd_i),
     }

@@ -3,7 +3,8 @@
 The units' reported values are drawn from the stage-two model's own prior, given a
 fleet's structure and its units' covariances (as stage one measured them): the scales
 from their half-normal priors, the fleet-wide and per-camera latents from theirs, and
-each unit's values around its truth with ``kappa`` times its covariance.  Refitting
+each unit's values around its truth with its covariance scaled by ``kappa`` per
+direction (``T Sigma T``, :mod:`.model`).  Refitting
 each simulated fleet, the rank of every true value among its posterior draws is
 uniform when the sampler, the integration of the latents and the conditional draws
 are right.  This checks stage two as written; the Gaussian summary of stage one is
@@ -17,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from bayescal.fleet.model import FleetData, Plan, block_scales, design_of, with_units
+from bayescal.fleet.model import FleetData, Plan, block_scales, design_of, excess_of, scale_directions, with_units
 from bayescal.fleet.sampling import sample_fleet, scale_priors
 from bayescal.model.spec import FleetSpec
 
@@ -34,15 +35,18 @@ def prior_fleet(plan: Plan, data: FleetData, rng: np.random.Generator, design=No
         v = np.abs(rng.normal(0.0, priors[name], size))
         hyper[name] = 1.0 + v if name == "excess" else v
     k_n = plan.n_kinds
-    kappa = hyper.get("excess", np.ones(k_n))
+    kappa = excess_of(plan, hyper)  # (K, D)
     sc = block_scales(plan, hyper)[:, None, :] * data.active  # (K, M, B)
     g = rng.standard_normal(data.prior_var_g.shape) * np.sqrt(data.prior_var_g)  # (K, G)
     x_m = sc * rng.standard_normal(sc.shape)
     h_g, h_m, _ = design_of(plan, data) if design is None else design
-    theta = np.einsum("kucg,kg->kuc", h_g, g) + np.einsum("kucb,kub->kuc", h_m, x_m[:, data.camera, :])
+    own = np.arange(plan.block) < plan.shared_base  # the camera's shared error is part of the units' error
+    per_unit = x_m[:, data.camera, :]
+    theta = np.einsum("kucg,kg->kuc", h_g, g) + np.einsum("kucb,kub->kuc", h_m * own, per_unit)
+    shared = np.einsum("kucb,kub->ukc", h_m * ~own, per_unit)
     z = rng.standard_normal((plan.n_units, k_n * plan.n_channels))
     noise = np.einsum("uqr,ur->uq", data.chol, z).reshape(plan.n_units, k_n, plan.n_channels)
-    y = np.transpose(theta, (1, 0, 2)) + noise * np.sqrt(kappa)[None, :, None]
+    y = np.transpose(theta, (1, 0, 2)) + scale_directions(plan, noise + shared, kappa)  # T (L e + Sigma^1/2 z)
     truth = {name: np.atleast_1d(v) for name, v in hyper.items()}
     truth["mu"] = g[:, : plan.n_channels]
     c_n = plan.n_channels

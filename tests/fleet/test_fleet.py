@@ -23,6 +23,7 @@ from bayescal.fleet.model import (
     fleet_data,
     integrated_value,
     log_marginal,
+    weighted,
 )
 from bayescal.fleet.units import fleet_from_frame
 from bayescal.model.spec import FleetSpec, InferenceSpec
@@ -112,26 +113,40 @@ class _Fits:
         self.cov = (a @ np.swapaxes(a, 1, 2) + n_kinds * c * np.eye(n_kinds * c)) * np.outer(s, s) * 0.003
 
 
-def _dense(plan, data, hyper):
-    """``y ~ N(0, H V H' + kappa Sigma)`` built densely: the reference for the block algebra."""
-    h_g, h_m, active = design_of(plan, data)
+def _unit_rows(plan, data, hyper, k, u, design):
+    """Kind ``k`` of unit ``u`` densely: its rows of ``H`` (global, then every camera's block, each
+    slot times its scale; the camera's shared error times ``T``) and its error covariance
+    ``T Sigma T``, with ``T = sqrt(kappa_1) P_1 + sqrt(kappa_2) P_2`` built here from its definition."""
+    h_g, h_m, active = design
     sc = block_scales(plan, hyper)[:, None, :] * active  # (K, M, B)
-    cov_u = data.chol @ np.swapaxes(data.chol, 1, 2)
+    c_n = plan.n_channels
+    kappa = np.ones(2) if "excess" not in hyper else np.asarray(hyper["excess"]).reshape(plan.n_kinds, -1)[k]
+    mean = np.full((c_n, c_n), 1.0 / c_n)
+    t = np.sqrt(kappa[0]) * mean + np.sqrt(kappa[-1]) * (np.eye(c_n) - mean)
+    rows = np.zeros((c_n, plan.n_global + plan.n_cameras * plan.block))
+    rows[:, : plan.n_global] = h_g[k, u]
+    m = data.camera[u]
+    block = h_m[k, u] * sc[k, m]
+    if plan.shared:
+        block[:, plan.shared_base :] = t @ block[:, plan.shared_base :]
+    rows[:, plan.n_global + m * plan.block : plan.n_global + (m + 1) * plan.block] = block
+    sl = slice(k * c_n, (k + 1) * c_n)
+    cov_u = (data.chol[u] @ data.chol[u].T)[sl, sl]
+    return rows, t @ cov_u @ t
+
+
+def _dense(plan, data, hyper):
+    """``y ~ N(0, H V H' + T Sigma T)`` built densely: the reference for the block algebra."""
+    design = design_of(plan, data)
     total = 0.0
+    u_n, c_n = plan.n_units, plan.n_channels
     for k in range(plan.n_kinds):
-        u_n, c_n = plan.n_units, plan.n_channels
-        n_lat = plan.n_global + plan.n_cameras * plan.block
-        h = np.zeros((u_n * c_n, n_lat))
-        for u in range(u_n):
-            h[u * c_n : (u + 1) * c_n, : plan.n_global] = h_g[k, u]
-            m = data.camera[u]
-            cols = slice(plan.n_global + m * plan.block, plan.n_global + (m + 1) * plan.block)
-            h[u * c_n : (u + 1) * c_n, cols] = h_m[k, u] * sc[k, m]
-        v = np.concatenate([data.prior_var_g[k], np.ones(plan.n_cameras * plan.block)])
-        sl = slice(k * c_n, (k + 1) * c_n)
+        parts = [_unit_rows(plan, data, hyper, k, u, design) for u in range(u_n)]
+        h = np.concatenate([p[0] for p in parts])
         noise = np.zeros((u_n * c_n, u_n * c_n))
         for u in range(u_n):
-            noise[u * c_n : (u + 1) * c_n, u * c_n : (u + 1) * c_n] = cov_u[u, sl, sl] * hyper["excess"][k]
+            noise[u * c_n : (u + 1) * c_n, u * c_n : (u + 1) * c_n] = parts[u][1]
+        v = np.concatenate([data.prior_var_g[k], np.ones(plan.n_cameras * plan.block)])
         cov = h @ np.diag(v) @ h.T + noise
         y = data.y.reshape(u_n, plan.n_kinds, c_n)[:, k].ravel()
         sign, logdet = np.linalg.slogdet(cov)
@@ -149,7 +164,7 @@ def test_marginal_likelihood_matches_the_dense_gaussian(small_fleet, float64):
     values = []
     for scale in (0.3, 1.7):
         hyper = {k: np.full(n, scale) for k, n in plan.sampled().items()}
-        hyper["excess"] = np.array([1.0, 2.5, 1.3]) * scale
+        hyper["excess"] = np.array([1.0, 2.5, 1.3, 4.0, 1.1, 1.9]) * scale  # per kind: together, apart
         fast = float(log_marginal(plan, {k: jnp.asarray(v) for k, v in hyper.items()}, data.arrays()))
         values.append((fast, _dense(plan, data, hyper)))
     # equal up to a constant (y' Sigma^-1 y terms and prior determinants cancel in the difference)
@@ -181,13 +196,52 @@ def test_marginal_gradient_matches_the_dense_gaussian(small_fleet, float64):
     )
     # central differences of a ~1e3 log density: truncation ~h^2, rounding ~1e-13 / h
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-6 * np.max(np.abs(fd)))
-    # and against reverse-mode differentiation through the factorisations (the path it replaces)
+    # and against reverse-mode differentiation through the factorisations (the path it replaces),
+    # for the slots' scales and every Gram array (the prior's variances included)
     sc = jnp.asarray(rng.uniform(0.1, 2.0, data.active.shape)) * arrays["active"]
-    w = jnp.asarray(rng.uniform(0.3, 1.0, plan.n_kinds))
-    closed = jax.grad(_integrated(), argnums=(0, 1))(sc, w, arrays)
-    autodiff = jax.grad(lambda s, v: integrated_value(s, v, arrays)[0], argnums=(0, 1))(sc, w)
+    eff = weighted(plan, arrays, jnp.asarray(rng.uniform(1.0, 3.0, (plan.n_kinds, plan.n_directions))), jnp)
+    closed = jax.tree_util.tree_leaves(jax.grad(_integrated(), argnums=(0, 1))(sc, eff))
+    autodiff = jax.tree_util.tree_leaves(jax.grad(lambda s, a: integrated_value(s, a)[0], argnums=(0, 1))(sc, eff))
     for a, b in zip(closed, autodiff, strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-8, atol=1e-10 * float(jnp.max(jnp.abs(b))))
+
+
+def test_leave_one_unit_out_matches_the_dense_gaussian_conditional(small_fleet, float64):
+    """``log p(y_u | y_-u, h)`` in closed form (numpy and compiled) against the conditional of the
+    dense joint Gaussian of every unit's values, per kind."""
+    from bayescal.fleet.loo import loo_log_predictive, loo_pieces, loo_predictive
+    from bayescal.fleet.model import draw_scales
+
+    fleet = fleet_from_frame(_frame(small_fleet), source="small")
+    data, plan = fleet_data(_Fits(fleet, 2, np.random.default_rng(2)), FleetSpec(), 0.03)
+    hyper = {k: np.full((1, n), 0.7) for k, n in plan.sampled().items()}
+    hyper["excess"] = np.array([[1.4, 2.6, 1.1, 1.8]])
+    one = {name: v[0] for name, v in hyper.items()}
+    design = design_of(plan, data)
+    u_n, c_n = plan.n_units, plan.n_channels
+    reference = np.zeros(u_n)
+    for k in range(plan.n_kinds):
+        parts = [_unit_rows(plan, data, one, k, u, design) for u in range(u_n)]
+        h = np.concatenate([p[0] for p in parts])
+        v = np.concatenate([data.prior_var_g[k], np.ones(plan.n_cameras * plan.block)])
+        cov = h @ np.diag(v) @ h.T
+        for u in range(u_n):
+            cov[u * c_n : (u + 1) * c_n, u * c_n : (u + 1) * c_n] += parts[u][1]
+        y = data.y.reshape(u_n, plan.n_kinds, c_n)[:, k].ravel()
+        for u in range(u_n):
+            own = np.zeros(u_n * c_n, bool)
+            own[u * c_n : (u + 1) * c_n] = True
+            gain = cov[np.ix_(own, ~own)] @ np.linalg.inv(cov[np.ix_(~own, ~own)])
+            mean = gain @ y[~own]
+            var = cov[np.ix_(own, own)] - gain @ cov[np.ix_(~own, own)]
+            resid = y[own] - mean
+            reference[u] += -0.5 * (resid @ np.linalg.solve(var, resid) + np.linalg.slogdet(var)[1])
+            reference[u] -= 0.5 * c_n * np.log(2 * np.pi)
+    sc, kappa = draw_scales(plan, hyper, data.arrays())
+    fast = loo_log_predictive(plan, data.camera, sc, kappa, data.arrays(), loo_pieces(plan, data))[0]
+    np.testing.assert_allclose(fast, reference, rtol=1e-8, atol=1e-8)
+    compiled = loo_predictive(plan, data, np.repeat(sc, 3, axis=0), np.repeat(kappa, 3, axis=0))
+    np.testing.assert_allclose(compiled, np.repeat(reference[None], 3, axis=0), rtol=1e-8, atol=1e-8)
 
 
 def test_conditional_draws_match_the_dense_posterior_mean(small_fleet):
@@ -195,24 +249,21 @@ def test_conditional_draws_match_the_dense_posterior_mean(small_fleet):
     rng = np.random.default_rng(1)
     data, plan = fleet_data(_Fits(fleet, 2, rng), FleetSpec(walk=False), 0.03)
     hyper = {k: np.full((1, n), 0.8) for k, n in plan.sampled().items()}
-    hyper["excess"] = np.full((1, plan.n_kinds), 1.5)
+    hyper["excess"] = np.array([[1.5, 3.0, 1.2, 2.0]])  # per kind: channels together, apart
     n = 4000
     g, cam = conditional_draws(plan, {k: np.repeat(v, n, axis=0) for k, v in hyper.items()}, data.arrays(), rng)
     # dense posterior of kind 0's latents: precision H' S^-1 H + V^-1
-    h_g, h_m, active = design_of(plan, data)
-    sc = block_scales(plan, {k: v[0] for k, v in hyper.items()})[:, None, :] * active
+    design = design_of(plan, data)
+    one = {name: v[0] for name, v in hyper.items()}
+    sc = block_scales(plan, one)[:, None, :] * design[2]
     c_n, k = plan.n_channels, 0
-    cov_u = data.chol @ np.swapaxes(data.chol, 1, 2)
     n_lat = plan.n_global + plan.n_cameras * plan.block
     prec = np.diag(np.concatenate([1.0 / data.prior_var_g[k], np.ones(plan.n_cameras * plan.block)]))
     info = np.zeros(n_lat)
     y = data.y.reshape(plan.n_units, plan.n_kinds, c_n)[:, k]
     for u in range(plan.n_units):
-        m = data.camera[u]
-        h = np.zeros((c_n, n_lat))
-        h[:, : plan.n_global] = h_g[k, u]
-        h[:, plan.n_global + m * plan.block : plan.n_global + (m + 1) * plan.block] = h_m[k, u] * sc[k, m]
-        s_inv = np.linalg.inv(cov_u[u, :c_n, :c_n] * 1.5)
+        h, noise = _unit_rows(plan, data, one, k, u, design)  # the camera slots standardised (times their scale)
+        s_inv = np.linalg.inv(noise)
         prec += h.T @ s_inv @ h
         info += h.T @ s_inv @ y[u]
     cov = np.linalg.inv(prec)
@@ -252,7 +303,47 @@ def test_chains_continue_until_the_ess_target(small_fleet):
     np.testing.assert_allclose(cam_jit, cam, rtol=1e-6, atol=1e-9 * np.abs(cam).max())
 
 
+def test_chains_with_a_divergence_are_run_again_at_the_retry_target(small_fleet, monkeypatch):
+    """The policy of a unit's own NUTS fit: new chains at ``retry_target_accept``, whose diagnostics
+    decide, with the first run's count kept (the sampler is replaced: no seed has to diverge)."""
+    import bayescal.fleet.sampling as sampling
+
+    fleet = fleet_from_frame(_frame(small_fleet), source="small")
+    data, plan = fleet_data(_Fits(fleet, 2, np.random.default_rng(1)), FleetSpec(walk=False), 0.03)
+    spec = FleetSpec(walk=False, chains=2, warmup=20, draws=20, extend=0)
+    dim = sum(plan.sampled().values())
+    targets = []
+
+    def chains(plan_, spec_, args, seed, inference):
+        targets.append(spec_.target_accept)
+        return np.log(0.5) + 0.1 * np.random.default_rng(seed).standard_normal((2, 20, dim)), 3 - 3 * (len(targets) > 1)
+
+    monkeypatch.setattr(sampling, "_run_chains", chains)
+    out = sampling.sample_fleet(data, plan, spec, seed=1, inference=InferenceSpec(retry_target_accept=0.97))
+    assert targets == [spec.target_accept, 0.97]
+    assert out.diagnostics["divergences"] == 0 and out.diagnostics["first_divergences"] == 3
+    targets.clear()
+    off = sampling.sample_fleet(data, plan, spec, seed=1, inference=InferenceSpec(retry_target_accept=0.0))
+    assert targets == [spec.target_accept] and off.diagnostics["divergences"] == 3
+
+
 # ---------------------------------------------------------------- a fleet with known truth
+def test_leave_one_unit_out_is_reliable_on_the_small_fleet(fitted):
+    """With every latent integrated out, PSIS reweights only the scales: few units have Pareto
+    k > 0.7, where the conditional log-likelihood (each unit's own jitter and walk step in it)
+    gives most of them (16 of 17 on this fleet)."""
+    import arviz as az
+
+    from bayescal.fleet.sampling import loo_of
+
+    _, result, _ = fitted
+    loo = loo_of(result.plan, result.data, result.draws)
+    ll = result.draws.log_likelihood
+    conditional = az.loo(az.from_dict({"posterior": {"d": np.zeros(ll.shape[:2])}, "log_likelihood": {"y": ll}}))
+    assert loo["n_high_k"] <= 4 < 8 <= int(np.sum(np.asarray(conditional.pareto_k) > 0.7))
+    assert np.isfinite(loo["elpd_loo"]) and loo["pointwise"].shape == (result.plan.n_units,)
+
+
 def test_small_fleet_samples_cleanly_and_covers_the_truth(fitted):
     fleet, result, truth = fitted
     d = result.draws.diagnostics
