@@ -55,6 +55,7 @@ __all__ = [
     "conditional_draws",
     "with_units",
     "design_of",
+    "channel_inflation",
     "excess_of",
     "scale_directions",
     "weighted",
@@ -395,6 +396,19 @@ def scale_directions(plan: Plan, v, kappa, xp=np, inverse: bool = False):
     root = xp.sqrt(kappa)
     root = 1.0 / root if inverse else root
     return xp.einsum("...kd,dce,...ke->...kc", root, proj, v)
+
+
+def channel_inflation(plan: Plan, unit_cov: np.ndarray, kappa: np.ndarray) -> np.ndarray:
+    """Per kind, how much wider the excess makes a unit's own interval of one channel:
+    ``sqrt(diag(T Sigma_u T) / diag(Sigma_u))``, the median over units and channels ``(K,)``.
+
+    ``unit_cov``: the units' covariances ``(U, K*C, K*C)`` (any per-kind units); ``kappa``: ``(K, D)``.
+    """
+    t = np.einsum("kd,dce->kce", np.sqrt(kappa), projections(plan.n_channels))  # T per kind
+    sigma = kind_blocks(plan, unit_cov)  # (K, U, C, C)
+    wide = np.einsum("kce,kuef,kcf->kuc", t, sigma, t)
+    own = np.diagonal(sigma, axis1=-2, axis2=-1)
+    return np.median(np.sqrt(wide / own), axis=(1, 2))
 
 
 #: the arrays :func:`weighted` combines

@@ -28,7 +28,7 @@ import pandas as pd
 
 from bayescal._config import computes
 from bayescal.errors import PosteriorError, SpecError
-from bayescal.fleet.model import FleetData, Plan, excess_of, fleet_data
+from bayescal.fleet.model import FleetData, Plan, channel_inflation, excess_of, fleet_data
 from bayescal.fleet.sampling import FleetDraws, loo_of, sample_fleet
 from bayescal.fleet.stage1 import UnitFits, fit_units
 from bayescal.fleet.units import DAYS_PER_YEAR, FleetTable
@@ -38,7 +38,8 @@ __all__ = ["FleetFit", "fit_fleet", "compare_pooling"]
 
 #: the fleet posterior file inside a fleet directory
 FLEET_FILE = "fleet.nc"
-#: sqrt(kappa) above which the units' scatter fails the fit (their own intervals 3x too narrow)
+#: the widening of a unit's own interval of a channel by the excess (:func:`~.model.channel_inflation`)
+#: above which the units' scatter fails the fit (their own intervals 3x too narrow)
 EXCESS_LIMIT = 3.0
 #: the directions of a unit's error with their own excess (:func:`~.model.excess_of`), as reported
 DIRECTIONS = ("channels together", "channels apart")
@@ -96,14 +97,15 @@ class FleetFit:
         for _, r in bad.iterrows():
             out.append(f"unit {r['camera']} {r['campaign'] or ''} did not converge in stage one")
         if "excess" in self.draws.draws:
-            root = np.sqrt(np.median(self._excess(), axis=0))  # (K, D)
-            for kind, roots in zip(self.kinds, root, strict=True):
-                for where, r in zip(DIRECTIONS, roots, strict=False):
-                    if r > EXCESS_LIMIT:
-                        out.append(
-                            f"the units' {kind} estimates scatter {r:.1f}x more than their own intervals allow "
-                            f"with the {where} (the channel model or the hierarchy does not describe these cameras)"
-                        )
+            kappa = np.median(self._excess(), axis=0)  # (K, D)
+            wider = channel_inflation(self.plan, self.unit_cov, kappa)
+            for kind, r, k in zip(self.kinds, wider, kappa, strict=True):
+                if r > EXCESS_LIMIT:
+                    parts = ", ".join(f"{w} {np.sqrt(v):.1f}x" for w, v in zip(DIRECTIONS, k, strict=False))
+                    out.append(
+                        f"the units' {kind} estimates scatter {r:.1f}x more than their own intervals of a channel "
+                        f"allow ({parts}; the channel model or the hierarchy does not describe these cameras)"
+                    )
         return out
 
     @property

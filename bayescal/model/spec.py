@@ -131,9 +131,10 @@ class FleetSpec:
     by another where they differ (``T Sigma T``, :mod:`bayescal.fleet.model`): when the
     channel model does not describe a camera exactly, a unit's own intervals are too
     narrow, and the scatter of the units about the hierarchy says by how much and in which
-    direction (the fleet's intervals widen; ``sqrt(kappa)`` is reported, and over 3 fails
-    the fit).  One factor for both directions over-widened the gains: the channels'
-    differences need 1.4-3.1x, their common part 0.4-1.5x on the independent simulator.
+    direction (the fleet's intervals widen; ``sqrt(kappa)`` is reported, and a widening of
+    a unit's own interval of a channel by over 3x fails the fit).  One factor for both
+    directions over-widened the gains: the channels' differences need 1.4-3.1x, their
+    common part 0.4-1.5x on the independent simulator.
 
     ``shared_error``: the fraction of a unit's stage-one error variance that repeats in
     every campaign of its camera (the same channel model's systematic misfit of the same

@@ -154,6 +154,20 @@ def _dense(plan, data, hyper):
     return total
 
 
+def test_channel_inflation_in_closed_form():
+    """``sqrt(diag(T Sigma T) / diag(Sigma))``: with ``Sigma = I`` (3 channels) and kappa 4 together,
+    1 apart, ``T^2 = 4 P_1 + P_2`` has diagonal 4/3 + 2/3 = 2; with channels fully correlated
+    (``Sigma = 1 1'``) only the common direction counts: sqrt(4) = 2."""
+    from bayescal.fleet.model import Plan, channel_inflation
+
+    plan = Plan(2, 3, 2, 2, 1, 0, 0, False, False, "partial", 1.0, 0.5, 0.3)
+    cov = np.zeros((2, 6, 6))
+    cov[:, :3, :3] = np.eye(3)
+    cov[:, 3:, 3:] = np.ones((3, 3)) + 1e-12 * np.eye(3)
+    out = channel_inflation(plan, cov, np.array([[4.0, 1.0], [4.0, 9.0]]))
+    np.testing.assert_allclose(out, [np.sqrt(2.0), 2.0], rtol=1e-6)
+
+
 def test_marginal_likelihood_matches_the_dense_gaussian(small_fleet, float64):
     import jax.numpy as jnp
 
