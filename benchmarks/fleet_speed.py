@@ -26,7 +26,8 @@ import pandas as pd
 from bayescal import load_spec
 from bayescal._config import enable_numerics
 from bayescal.fleet import fit_fleet
-from bayescal.fleet.model import _integrated, block_scales, excess_of, fleet_data, integrated_value, weighted
+from bayescal.fleet.excess import excess_of, weighted
+from bayescal.fleet.model import _integrated, block_scales, fleet_data, integrated_value
 from bayescal.fleet.sampling import _unpack
 from bayescal.fleet.stage1 import fit_units
 from bayescal.fleet.units import fleet_from_frame

@@ -23,18 +23,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from bayescal.fleet.model import (
-    FleetData,
-    Plan,
-    design_of,
-    factorise,
-    factors,
-    kind_blocks,
-    pieces,
-    solve_chol,
-    solve_lower,
-    weighted,
-)
+from bayescal.fleet.excess import factors, kind_blocks, weighted
+from bayescal.fleet.model import FleetData, Plan, design_of, factorise, pieces, solve_chol, solve_lower
 
 __all__ = ["loo_pieces", "loo_log_predictive", "loo_predictive"]
 

@@ -42,6 +42,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from bayescal.fleet.excess import excess_of, kind_blocks, projections, weighted
 from bayescal.fleet.stage1 import UnitFits
 from bayescal.fleet.units import to_years
 from bayescal.model.spec import FleetSpec
@@ -55,10 +56,6 @@ __all__ = [
     "conditional_draws",
     "with_units",
     "design_of",
-    "channel_inflation",
-    "excess_of",
-    "scale_directions",
-    "weighted",
 ]
 
 #: the prior sd of a camera's level without pooling (standardised units: effectively flat)
@@ -108,7 +105,7 @@ class Plan:
     @property
     def pairs(self) -> tuple[tuple[int, int], ...]:
         """The weight products of the Gram arrays: pairs ``a <= b`` of the factors
-        ``(kappa_together^-1/2, kappa_apart^-1/2, 1)`` (:func:`factors`)."""
+        ``(kappa_together^-1/2, kappa_apart^-1/2, 1)`` (:func:`.excess.factors`)."""
         f = self.n_directions + 1
         return tuple((a, b) for a in range(f) for b in range(a, f))
 
@@ -363,74 +360,6 @@ def pieces(plan: Plan, h_g, h_m, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return x_g, x_m, v
 
 
-def kind_blocks(plan: Plan, cov: np.ndarray) -> np.ndarray:
-    """The units' covariances ``(U, K*C, K*C)`` as their kinds' blocks ``(K, U, C, C)``."""
-    c_n = plan.n_channels
-    return np.stack([cov[:, k * c_n : (k + 1) * c_n, k * c_n : (k + 1) * c_n] for k in range(plan.n_kinds)])
-
-
-def projections(n_channels: int) -> np.ndarray:
-    """``(D, C, C)``: onto the channels' mean (all channels together) and, with two or more
-    channels, onto its complement (the channels apart)."""
-    together = np.full((n_channels, n_channels), 1.0 / n_channels)
-    return np.stack([together, np.eye(n_channels) - together]) if n_channels > 1 else together[None]
-
-
-def excess_of(plan: Plan, hyper: dict, xp=np):
-    """Each kind's excess dispersion per direction, ``(..., K, D)`` (ones without an excess)."""
-    if "excess" not in hyper:
-        return xp.ones((plan.n_kinds, plan.n_directions))
-    kappa = hyper["excess"]
-    return kappa.reshape(kappa.shape[:-1] + (plan.n_kinds, plan.n_directions))
-
-
-def factors(kappa, xp=np):
-    """``(..., K, F)``: ``kappa_a^-1/2`` per direction and 1 (the camera's shared error, unscaled)."""
-    return xp.concatenate([1.0 / xp.sqrt(kappa), xp.ones(kappa.shape[:-1] + (1,))], axis=-1)
-
-
-def scale_directions(plan: Plan, v, kappa, xp=np, inverse: bool = False):
-    """``T v`` (``T^-1 v`` with ``inverse``) for values ``v`` ``(..., K, C)`` and ``kappa`` ``(..., K, D)``:
-    each direction's part of ``v`` times ``sqrt(kappa)`` of that direction."""
-    proj = xp.asarray(projections(plan.n_channels))
-    root = xp.sqrt(kappa)
-    root = 1.0 / root if inverse else root
-    return xp.einsum("...kd,dce,...ke->...kc", root, proj, v)
-
-
-def channel_inflation(plan: Plan, unit_cov: np.ndarray, kappa: np.ndarray) -> np.ndarray:
-    """Per kind, how much wider the excess makes a unit's own interval of one channel:
-    ``sqrt(diag(T Sigma_u T) / diag(Sigma_u))``, the median over units and channels ``(K,)``.
-
-    ``unit_cov``: the units' covariances ``(U, K*C, K*C)`` (any per-kind units); ``kappa``: ``(K, D)``.
-    """
-    t = np.einsum("kd,dce->kce", np.sqrt(kappa), projections(plan.n_channels))  # T per kind
-    sigma = kind_blocks(plan, unit_cov)  # (K, U, C, C)
-    wide = np.einsum("kce,kuef,kcf->kuc", t, sigma, t)
-    own = np.diagonal(sigma, axis1=-2, axis2=-1)
-    return np.median(np.sqrt(wide / own), axis=(1, 2))
-
-
-#: the arrays :func:`weighted` combines
-_GRAM = ("g_gg", "g_gm", "g_mm", "b_g", "b_m", "yy")
-
-
-def weighted(plan: Plan, arrays: dict, kappa, xp=np) -> dict:
-    """The Gram arrays of given excess dispersions ``kappa`` ``(..., K, D)``: ``sum_p w_p G_p``
-    (:func:`_blocks`), with the prior's variances; leading dimensions of ``kappa`` carry through."""
-    f = factors(kappa, xp)
-    w = xp.stack([f[..., a] * f[..., b] for a, b in plan.pairs], axis=-2)  # (..., P, K)
-    out = {}
-    for name in _GRAM:
-        g = arrays[name]
-        extra = g.ndim - 2
-        # a broadcast product summed over P, not an einsum: XLA fuses it into one pass, where its
-        # dot_general over these small axes took 0.5 ms of a 1.2 ms gradient
-        out[name] = xp.sum(w.reshape(w.shape + (1,) * extra) * g, axis=-(extra + 2))
-    out["prior_var_g"] = arrays["prior_var_g"]
-    return out
-
-
 def design_of(plan: Plan, data: FleetData):
     """``H`` of built fleet data: global columns ``(K, U, C, G)``, own-camera columns
     ``(K, U, C, B)`` and the active camera slots ``(K, M, B)``."""
@@ -532,7 +461,7 @@ def log_marginal(plan: Plan, hyper: dict, arrays: dict):
 @lru_cache(maxsize=1)
 def _integrated():
     """``F(sc, a) = 1/2 b' P^-1 b - 1/2 log|P| - 1/2 y' Sigma^-1 y`` per kind, summed, with its
-    gradient in closed form (``a``: the Gram arrays as :func:`weighted` combines them).
+    gradient in closed form (``a``: the Gram arrays as :func:`.excess.weighted` combines them).
 
     Latents in the camera blocks are standardised (``x_m = S_m z_m``, ``z_m ~ N(0, I)``), so
     the posterior precision and the data vector are, per kind::
@@ -627,7 +556,7 @@ def integrated_value(sc, a):
 def factorise(plan, sc, a, xp):
     """The factorisation shared by the marginal likelihood and the conditional draws.
 
-    ``sc``: ``(..., K, M, B)``; ``a``: the weighted Gram arrays (:func:`weighted`), leading
+    ``sc``: ``(..., K, M, B)``; ``a``: the weighted Gram arrays (:func:`.excess.weighted`), leading
     dims broadcast (draws).
     """
     p_mm = sc[..., :, None] * a["g_mm"] * sc[..., None, :] + xp.eye(plan.block)

@@ -28,7 +28,8 @@ import pandas as pd
 
 from bayescal._config import computes
 from bayescal.errors import PosteriorError, SpecError
-from bayescal.fleet.model import FleetData, Plan, channel_inflation, excess_of, fleet_data
+from bayescal.fleet.excess import channel_inflation, excess_of
+from bayescal.fleet.model import FleetData, Plan, fleet_data
 from bayescal.fleet.sampling import FleetDraws, loo_of, sample_fleet
 from bayescal.fleet.stage1 import UnitFits, fit_units
 from bayescal.fleet.units import DAYS_PER_YEAR, FleetTable
@@ -38,10 +39,10 @@ __all__ = ["FleetFit", "fit_fleet", "compare_pooling"]
 
 #: the fleet posterior file inside a fleet directory
 FLEET_FILE = "fleet.nc"
-#: the widening of a unit's own interval of a channel by the excess (:func:`~.model.channel_inflation`)
+#: the widening of a unit's own interval of a channel by the excess (:func:`~.excess.channel_inflation`)
 #: above which the units' scatter fails the fit (their own intervals 3x too narrow)
 EXCESS_LIMIT = 3.0
-#: the directions of a unit's error with their own excess (:func:`~.model.excess_of`), as reported
+#: the directions of a unit's error with their own excess (:func:`~.excess.excess_of`), as reported
 DIRECTIONS = ("channels together", "channels apart")
 
 

@@ -15,15 +15,14 @@ from functools import lru_cache
 import numpy as np
 
 from bayescal._config import computes
+from bayescal.fleet.excess import excess_of, scale_directions
 from bayescal.fleet.model import (
     FleetData,
     Plan,
     conditional_draws,
     draw_scales,
-    excess_of,
     latent_draws,
     log_marginal,
-    scale_directions,
     standard_normals,
 )
 from bayescal.model.spec import FleetSpec, InferenceSpec

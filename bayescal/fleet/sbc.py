@@ -18,7 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from bayescal.fleet.model import FleetData, Plan, block_scales, design_of, excess_of, scale_directions, with_units
+from bayescal.fleet.excess import excess_of, scale_directions
+from bayescal.fleet.model import FleetData, Plan, block_scales, design_of, with_units
 from bayescal.fleet.sampling import sample_fleet, scale_priors
 from bayescal.model.spec import FleetSpec
 

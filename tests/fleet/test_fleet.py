@@ -15,6 +15,7 @@ import pytest
 
 from bayescal import load_spec
 from bayescal.errors import TableError
+from bayescal.fleet.excess import weighted
 from bayescal.fleet.model import (
     _integrated,
     block_scales,
@@ -23,7 +24,6 @@ from bayescal.fleet.model import (
     fleet_data,
     integrated_value,
     log_marginal,
-    weighted,
 )
 from bayescal.fleet.units import fleet_from_frame
 from bayescal.model.spec import FleetSpec, InferenceSpec
@@ -158,7 +158,8 @@ def test_channel_inflation_in_closed_form():
     """``sqrt(diag(T Sigma T) / diag(Sigma))``: with ``Sigma = I`` (3 channels) and kappa 4 together,
     1 apart, ``T^2 = 4 P_1 + P_2`` has diagonal 4/3 + 2/3 = 2; with channels fully correlated
     (``Sigma = 1 1'``) only the common direction counts: sqrt(4) = 2."""
-    from bayescal.fleet.model import Plan, channel_inflation
+    from bayescal.fleet.excess import channel_inflation
+    from bayescal.fleet.model import Plan
 
     plan = Plan(2, 3, 2, 2, 1, 0, 0, False, False, "partial", 1.0, 0.5, 0.3)
     cov = np.zeros((2, 6, 6))
