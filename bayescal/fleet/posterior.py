@@ -314,6 +314,9 @@ class FleetFit:
         rows = []
         scale = self.data.scale
         d = self.draws.draws
+        if "excess" in d:  # what the verdict judges: a unit's own interval of a channel widened
+            excess = self._excess()
+            widening = np.stack([channel_inflation(self.plan, self.unit_cov, kappa) for kappa in excess])
         for k, kind in enumerate(self.kinds):
             entries = {}
             if "sigma_camera" in d:
@@ -328,8 +331,9 @@ class FleetFit:
                 if "jitter_sd" in d:
                     entries["campaign jitter"] = self._flat("jitter_sd")[:, k] * scale[k]
             if "excess" in d:
-                for where, kappa in zip(DIRECTIONS, np.moveaxis(self._excess()[:, k], -1, 0), strict=False):
+                for where, kappa in zip(DIRECTIONS, np.moveaxis(excess[:, k], -1, 0), strict=False):
                     entries[f"interval inflation sqrt(kappa), {where}"] = np.sqrt(kappa)
+                entries["interval inflation of one channel"] = widening[:, k]
             for name, v in entries.items():
                 lo, med, hi = np.quantile(v, [0.025, 0.5, 0.975])
                 rows.append({"quantity": kind, "parameter": name, "median": med, "q2.5": lo, "q97.5": hi})

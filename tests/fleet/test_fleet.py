@@ -365,6 +365,9 @@ def test_small_fleet_samples_cleanly_and_covers_the_truth(fitted):
     assert d["divergences"] == 0
     assert d["max_rhat"] <= 1.02
     assert min(d["min_ess_bulk"], d["min_ess_tail"]) >= 200  # the verdict asks 400; here a margin for the seed
+    hyper = result.hyperparameters()
+    widening = hyper[hyper.parameter == "interval inflation of one channel"]
+    assert list(widening.quantity) == list(result.kinds) and np.all(np.isfinite(widening["median"]))
     s = result.summary().merge(truth, on=["camera", "campaign", "channel"], suffixes=("", "_true"))
     assert len(s) == 3 * (6 * 3 - 1)
     # the gain against each campaign's sphere reading (the absolute gain adds the sphere's 3 % scale
