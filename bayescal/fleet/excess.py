@@ -21,7 +21,9 @@ if TYPE_CHECKING:
 
 __all__ = [
     "channel_inflation",
+    "direction_sizes",
     "excess_of",
+    "log_det_t",
     "factors",
     "kind_blocks",
     "projections",
@@ -43,12 +45,23 @@ def projections(n_channels: int) -> np.ndarray:
     return np.stack([together, np.eye(n_channels) - together]) if n_channels > 1 else together[None]
 
 
-def excess_of(plan: Plan, hyper: dict, xp=np):
-    """Each kind's excess dispersion per direction, ``(..., K, D)`` (ones without an excess)."""
+def excess_of(plan: Plan, hyper: dict, xp=np, draws: int | None = None):
+    """Each kind's excess dispersion per direction, ``(..., K, D)``; without an excess, ones
+    (``(draws, K, D)`` when ``draws`` is given, else ``(K, D)``)."""
     if "excess" not in hyper:
-        return xp.ones((plan.n_kinds, plan.n_directions))
+        return xp.ones(((draws,) if draws is not None else ()) + (plan.n_kinds, plan.n_directions))
     kappa = hyper["excess"]
     return kappa.reshape(kappa.shape[:-1] + (plan.n_kinds, plan.n_directions))
+
+
+def direction_sizes(plan: Plan) -> np.ndarray:
+    """A unit's values in each direction of one kind, ``(D,)``: 1 together, ``C - 1`` apart."""
+    return np.array([1.0, plan.n_channels - 1.0])[: plan.n_directions]
+
+
+def log_det_t(plan: Plan, kappa, xp=np):
+    """``log|T|`` per kind, ``(..., K)``: ``1/2 sum_a n_a log kappa_a`` (:func:`direction_sizes`)."""
+    return 0.5 * xp.sum(direction_sizes(plan) * xp.log(kappa), axis=-1)
 
 
 def factors(kappa, xp=np):
@@ -69,13 +82,14 @@ def channel_inflation(plan: Plan, unit_cov: np.ndarray, kappa: np.ndarray) -> np
     """Per kind, how much wider the excess makes a unit's own interval of one channel:
     ``sqrt(diag(T Sigma_u T) / diag(Sigma_u))``, the median over units and channels ``(K,)``.
 
-    ``unit_cov``: the units' covariances ``(U, K*C, K*C)`` (any per-kind units); ``kappa``: ``(K, D)``.
+    ``unit_cov``: the units' covariances ``(U, K*C, K*C)`` (any per-kind units); ``kappa``:
+    ``(..., K, D)``, leading dimensions (draws) carried through to ``(..., K)``.
     """
-    t = np.einsum("kd,dce->kce", np.sqrt(kappa), projections(plan.n_channels))  # T per kind
+    t = np.einsum("...kd,dce->...kce", np.sqrt(kappa), projections(plan.n_channels))  # T per kind
     sigma = kind_blocks(plan, unit_cov)  # (K, U, C, C)
-    wide = np.einsum("kce,kuef,kcf->kuc", t, sigma, t)
+    wide = np.einsum("...kce,kuef,...kcf->...kuc", t, sigma, t)
     own = np.diagonal(sigma, axis1=-2, axis2=-1)
-    return np.median(np.sqrt(wide / own), axis=(1, 2))
+    return np.median(np.sqrt(wide / own), axis=(-2, -1))
 
 
 #: the arrays :func:`weighted` combines

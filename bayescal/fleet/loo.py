@@ -23,7 +23,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from bayescal.fleet.excess import factors, kind_blocks, weighted
+from bayescal.fleet.excess import factors, kind_blocks, log_det_t, weighted
 from bayescal.fleet.model import FleetData, Plan, design_of, factorise, pieces, solve_chol, solve_lower
 
 __all__ = ["loo_pieces", "loo_log_predictive", "loo_predictive"]
@@ -48,9 +48,7 @@ def loo_log_predictive(plan: Plan, camera, sc, kappa, arrays: dict, parts: dict,
     (:func:`.model.draw_scales`); ``parts``: :func:`loo_pieces`; ``camera``: each unit's camera.
     """
     a = weighted(plan, arrays, kappa, xp)
-    bm_s, _, l_m, l_s, b_g2 = factorise(plan, sc, a, xp)
-    p_gm = a["g_gm"] * sc[..., None, :]  # (S, K, M, G, B)
-    x_mg = solve_chol(l_m, xp.swapaxes(p_gm, -1, -2), xp)  # P_mm^-1 P_mg, (S, K, M, B, G)
+    bm_s, l_m, l_s, b_g2, p_gm, x_mg = factorise(plan, sc, a, xp)  # P_gm, P_mm^-1 P_mg
     mu_g = solve_chol(l_s, b_g2, xp)
     mu_m = solve_chol(l_m, bm_s - xp.einsum("skmgb,skg->skmb", p_gm, mu_g), xp)  # standardised slots
     f = factors(kappa, xp)  # (S, K, F)
@@ -70,8 +68,7 @@ def loo_log_predictive(plan: Plan, camera, sc, kappa, arrays: dict, parts: dict,
     l_a = xp.linalg.cholesky(parts["sigma"] - q)
     white = solve_lower(l_a, resid[..., None], xp)[..., 0]
     c_n = plan.n_channels
-    n_dir = np.array([1.0, c_n - 1.0])[: plan.n_directions]  # a unit's values per direction
-    log_t = 0.5 * xp.sum(n_dir * xp.log(kappa), axis=-1)  # (S, K)
+    log_t = log_det_t(plan, kappa, xp)  # (S, K)
     per_kind = (
         -0.5 * xp.sum(white**2, axis=-1)
         + xp.sum(xp.log(xp.diagonal(l_a, axis1=-2, axis2=-1)), axis=-1)

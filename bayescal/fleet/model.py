@@ -42,7 +42,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from bayescal.fleet.excess import excess_of, kind_blocks, projections, weighted
+from bayescal.fleet.excess import direction_sizes, excess_of, kind_blocks, projections, weighted
 from bayescal.fleet.stage1 import UnitFits
 from bayescal.fleet.units import to_years
 from bayescal.model.spec import FleetSpec
@@ -307,7 +307,7 @@ def fleet_data(fits: UnitFits, fleet_spec: FleetSpec, common_rel: float) -> tupl
         prior_var_g=prior_var_g,
         active=active,
         yy=yy,
-        n_rows=np.tile(np.array([n_units, n_units * (n_ch - 1)], float)[: plan.n_directions], (n_kinds, 1)),
+        n_rows=np.tile(n_units * direction_sizes(plan), (n_kinds, 1)),
     )
     return data, plan
 
@@ -554,10 +554,11 @@ def integrated_value(sc, a):
 
 
 def factorise(plan, sc, a, xp):
-    """The factorisation shared by the marginal likelihood and the conditional draws.
+    """The factorisation shared by the conditional draws and the leave-one-out densities.
 
     ``sc``: ``(..., K, M, B)``; ``a``: the weighted Gram arrays (:func:`.excess.weighted`), leading
-    dims broadcast (draws).
+    dims broadcast (draws).  Returns ``S b_m``, the factors of ``P_mm`` and of the Schur
+    complement, the reduced global vector, ``P_gm`` and ``P_mm^-1 P_mg``.
     """
     p_mm = sc[..., :, None] * a["g_mm"] * sc[..., None, :] + xp.eye(plan.block)
     l_m = xp.linalg.cholesky(p_mm)
@@ -568,7 +569,7 @@ def factorise(plan, sc, a, xp):
     schur = a["g_gg"] + _diag(1.0 / a["prior_var_g"], xp) - xp.einsum("...mgb,...mbh->...gh", p_gm, x_mg)
     l_s = xp.linalg.cholesky(schur)
     b_g2 = a["b_g"] - xp.einsum("...mgb,...mb->...g", p_gm, x_b)
-    return bm_s, x_b, l_m, l_s, b_g2
+    return bm_s, l_m, l_s, b_g2, p_gm, x_mg
 
 
 def _diag(v, xp):
@@ -608,7 +609,7 @@ def draw_scales(plan: Plan, hyper: dict, arrays: dict) -> tuple[np.ndarray, np.n
     s = next(iter(hyper.values())).shape[0] if hyper else 1
     sc = np.stack([block_scales(plan, {k: v[i] for k, v in hyper.items()}) for i in range(s)])  # (S, K, B)
     sc = sc[:, :, None, :] * arrays["active"][None]  # (S, K, M, B)
-    kappa = excess_of(plan, hyper) if "excess" in hyper else np.ones((s, plan.n_kinds, plan.n_directions))
+    kappa = excess_of(plan, hyper, draws=s)
     return sc, kappa
 
 
@@ -623,9 +624,8 @@ def latent_draws(plan: Plan, sc, kappa, arrays: dict, z_g, z_m, xp=np):
     """The conditional draws of :func:`conditional_draws` from given standard normals, in the array
     module ``xp`` (numpy, or ``jax.numpy`` compiled: :func:`bayescal.fleet.sampling.sample_fleet`)."""
     a = weighted(plan, arrays, kappa, xp)
-    bm_s, x_b, l_m, l_s, b_g2 = factorise(plan, sc, a, xp)
+    bm_s, l_m, l_s, b_g2, p_gm, _ = factorise(plan, sc, a, xp)
     g = solve_chol(l_s, b_g2, xp) + solve_lower(l_s, z_g[..., None], xp, transpose=True)[..., 0]
-    p_gm = a["g_gm"] * sc[..., None, :]
     rhs = bm_s - xp.einsum("skmgb,skg->skmb", p_gm, g)
     cam = solve_chol(l_m, rhs, xp) + solve_lower(l_m, z_m[..., None], xp, transpose=True)[..., 0]
     return g, sc * cam

@@ -316,7 +316,7 @@ class FleetFit:
         d = self.draws.draws
         if "excess" in d:  # what the verdict judges: a unit's own interval of a channel widened
             excess = self._excess()
-            widening = np.stack([channel_inflation(self.plan, self.unit_cov, kappa) for kappa in excess])
+            widening = channel_inflation(self.plan, self.unit_cov, excess)  # (S, K)
         for k, kind in enumerate(self.kinds):
             entries = {}
             if "sigma_camera" in d:

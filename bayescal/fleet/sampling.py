@@ -15,7 +15,7 @@ from functools import lru_cache
 import numpy as np
 
 from bayescal._config import computes
-from bayescal.fleet.excess import excess_of, scale_directions
+from bayescal.fleet.excess import excess_of, log_det_t, scale_directions
 from bayescal.fleet.model import (
     FleetData,
     Plan,
@@ -223,7 +223,7 @@ def sample_fleet(
     else:
         g, cam = _latents(plan, hyper, args, rng)
     draws = {k: v.reshape(chains, n, -1) for k, v in hyper.items()}
-    kappa = excess_of(plan, hyper) if "excess" in hyper else np.ones((chains * n, plan.n_kinds, plan.n_directions))
+    kappa = excess_of(plan, hyper, draws=chains * n)
     named = _named(plan, data, np.asarray(g), np.asarray(cam), kappa)
     draws |= {k: v.reshape((chains, n) + v.shape[1:]) for k, v in named.items()}
     ll = unit_log_likelihood(
@@ -299,10 +299,9 @@ def unit_log_likelihood(plan: Plan, data: FleetData, theta_observed: np.ndarray,
     white = scale_directions(plan, resid, kappa[:, None], inverse=True).reshape(s, u, k * c)  # T^-1 r
     inv_l = np.linalg.inv(data.chol)  # (U, KC, KC)
     z = np.einsum("uqr,sur->suq", inv_l, white)
-    n_dir = data.n_rows / plan.n_units  # values per unit in each direction, (K, D)
     logdet = (
         np.sum(np.log(np.diagonal(data.chol, axis1=1, axis2=2)), axis=1)[None]
-        + 0.5 * np.sum(n_dir * np.log(kappa), axis=(1, 2))[:, None]
+        + np.sum(log_det_t(plan, kappa), axis=1)[:, None]
     )
     return -0.5 * np.sum(z**2, axis=2) - logdet - 0.5 * k * c * np.log(2 * np.pi)
 
