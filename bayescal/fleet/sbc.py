@@ -21,7 +21,7 @@ import pandas as pd
 from bayescal.fleet.excess import excess_of, scale_directions
 from bayescal.fleet.model import FleetData, Plan, block_scales, design_of, with_units
 from bayescal.fleet.sampling import sample_fleet, scale_priors
-from bayescal.model.spec import FleetSpec
+from bayescal.model.spec import FleetSpec, InferenceSpec
 
 __all__ = ["FleetSBC", "prior_fleet", "run_fleet_sbc"]
 
@@ -68,20 +68,45 @@ class FleetSBC:
     n_draws: int
     diagnostics: pd.DataFrame
 
+    def histograms(self, bins: int = 10) -> pd.DataFrame:
+        """Rank counts per bin (rows) and quantity (columns): ``bins`` equal bins of ``0..n_draws``."""
+        return pd.DataFrame(
+            {
+                col: np.bincount(
+                    np.minimum((self.ranks[col].to_numpy() * bins) // (self.n_draws + 1), bins - 1), minlength=bins
+                )
+                for col in self.ranks
+            }
+        )
+
     def summary(self, bins: int = 10) -> pd.DataFrame:
-        """Per quantity: chi-square uniformity p-value of the ranks (``bins`` bins) and coverage."""
+        """Per quantity: chi-square uniformity p-value of the ranks (``bins`` bins), 95 % coverage,
+        and the mean normalised rank (0.5 when unbiased; above it, the posterior sits below the truth)."""
         from scipy import stats
 
-        rows = {}
-        for col in self.ranks:
-            counts = np.bincount(
-                np.minimum((self.ranks[col].to_numpy() * bins) // (self.n_draws + 1), bins - 1), minlength=bins
-            )
-            rows[col] = {
-                "p_uniform": float(stats.chisquare(counts).pvalue),
-                "coverage": float(self.covered[col].mean()),
-            }
-        return pd.DataFrame.from_dict(rows, orient="index")
+        counts = self.histograms(bins)
+        return pd.DataFrame(
+            {
+                "p_uniform": [float(stats.chisquare(counts[c]).pvalue) for c in counts],
+                "coverage": self.covered[counts.columns].mean().to_numpy(dtype=float),
+                "mean_rank": (self.ranks[counts.columns].mean() / self.n_draws).to_numpy(),
+            },
+            index=counts.columns,
+        )
+
+    def plot(self, path=None, bins: int = 10):
+        """The rank histograms, a panel per quantity, with the 99 % band of uniform ranks
+        (written atomically to ``path`` when given)."""
+        from bayescal.io.files import atomic_path
+        from bayescal.report.figures import rank_histograms
+
+        n = len(self.ranks)
+        title = f"Fleet stage two: SBC rank histograms ({n} fleets; grey: 99 % band of uniform ranks)"
+        fig = rank_histograms(self.histograms(bins), n, self.summary(bins).p_uniform, title)
+        if path is not None:
+            with atomic_path(path) as tmp:
+                fig.savefig(tmp, dpi=110, format=str(path).rsplit(".", 1)[-1])
+        return fig
 
 
 def run_fleet_sbc(
@@ -92,19 +117,27 @@ def run_fleet_sbc(
     seed: int = 0,
     thin: int = 4,
     progress=None,
+    inference: InferenceSpec | None = None,
 ) -> FleetSBC:
     """Simulate ``n_sims`` fleets from the prior (:func:`prior_fleet`), refit each with
-    :func:`~.sampling.sample_fleet`, and rank the truths among every ``thin``-th draw."""
+    :func:`~.sampling.sample_fleet`, and rank the truths among every ``thin``-th draw.
+
+    ``inference``: the fit's policy as a user's fit runs it (chains continued while the scales'
+    ESS or R-hat miss its bounds, new chains at its ``retry_target_accept`` after a divergent
+    transition); without it every fleet gets one run of ``spec.chains x spec.draws``.  Each
+    fleet's ranks are taken among its first ``spec.draws`` draws per chain, so that continued
+    chains do not change the rank scale.
+    """
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5BC]))
     ranks, covered, diags = [], [], []
     n_draws = 0
     design = design_of(plan, data)  # the structure is the same for every simulated fleet
     for i in range(n_sims):
         truth, y = prior_fleet(plan, data, rng, design)
-        draws = sample_fleet(with_units(plan, data, y, design), plan, spec, seed=seed + i)
+        draws = sample_fleet(with_units(plan, data, y, design), plan, spec, seed=seed + i, inference=inference)
         r, c = {}, {}
         for name, true in truth.items():
-            post = draws.draws[name][:, ::thin]
+            post = draws.draws[name][:, : spec.draws : thin]
             post = post.reshape((-1,) + post.shape[2:])
             if name == "camera_level":
                 post = post[:, :, :1]

@@ -11,7 +11,7 @@ from __future__ import annotations
 import base64
 import io
 
-__all__ = ["subplots", "colours", "png_base64"]
+__all__ = ["subplots", "colours", "png_base64", "rank_histograms"]
 
 
 def subplots(*args, figsize: tuple[float, float], **kwargs):
@@ -34,3 +34,31 @@ def png_base64(fig, dpi: int = 110) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def rank_histograms(counts, n_sims: int, p_values, title: str):
+    """Simulation-based calibration's rank histograms (Talts et al. 2018), a panel per quantity.
+
+    ``counts``: a DataFrame of rank counts, a row per bin and a column per quantity, from
+    ``n_sims`` simulated datasets; ``p_values``: the uniformity p-value per column.  Each
+    panel shades the 99 % band of one bin's count under uniform ranks (binomial).
+    """
+    import numpy as np
+    from scipy import stats
+
+    bins, n = counts.shape
+    cols = min(6, n)
+    rows = int(np.ceil(n / cols))
+    fig, axes = subplots(rows, cols, figsize=(2.2 * cols, 1.7 * rows), squeeze=False, sharey=True)
+    lo, hi = stats.binom.ppf([0.005, 0.995], n_sims, 1 / bins)
+    for ax, name in zip(axes.ravel(), counts.columns, strict=False):
+        ax.axhspan(lo, hi, color="0.85", lw=0)
+        ax.bar(np.arange(bins), counts[name], width=1.0, color="C0", alpha=0.8)
+        ax.set_title(f"{name}\np={p_values[name]:.2g}", fontsize=7)
+        ax.set_xticks([])
+        ax.tick_params(labelsize=6)
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    return fig

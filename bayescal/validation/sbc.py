@@ -144,25 +144,10 @@ class SBCResult:
 
     def plot(self, path: str | os.PathLike | None = None):
         """Rank histograms, one panel per parameter, with the 99 % band of a uniform histogram."""
-        from bayescal.report.figures import subplots
+        from bayescal.report.figures import rank_histograms
 
-        counts = self.histograms()
-        n = counts.shape[1]
-        cols = min(6, n)
-        rows = int(np.ceil(n / cols))
-        fig, axes = subplots(rows, cols, figsize=(2.2 * cols, 1.7 * rows), squeeze=False, sharey=True)
-        lo, hi = stats.binom.ppf([0.005, 0.995], self.n_sims, 1 / self.bins)
-        p = self.p_values()
-        for ax, name in zip(axes.ravel(), counts.columns, strict=False):
-            ax.axhspan(lo, hi, color="0.85", lw=0)
-            ax.bar(np.arange(self.bins), counts[name], width=1.0, color="C0", alpha=0.8)
-            ax.set_title(f"{name}\np={p[name]:.2f}", fontsize=7)
-            ax.set_xticks([])
-            ax.tick_params(labelsize=6)
-        for ax in axes.ravel()[n:]:
-            ax.axis("off")
-        fig.suptitle(f"SBC rank histograms ({self.n_sims} datasets, {self.batch.backend}; grey: 99 % band)", fontsize=9)
-        fig.tight_layout()
+        title = f"SBC rank histograms ({self.n_sims} datasets, {self.batch.backend}; grey: 99 % band)"
+        fig = rank_histograms(self.histograms(), self.n_sims, self.p_values(), title)
         if path is not None:
             with atomic_path(path) as tmp:
                 fig.savefig(tmp, dpi=110, format=str(path).rsplit(".", 1)[-1])
