@@ -133,8 +133,10 @@ class FleetSpec:
     narrow, and the scatter of the units about the hierarchy says by how much and in which
     direction (the fleet's intervals widen; ``sqrt(kappa)`` is reported, and a widening of
     a unit's own interval of a channel by over 3x fails the fit).  One factor for both
-    directions over-widened the gains: the channels' differences need 1.4-3.1x, their
-    common part 0.4-1.5x on the independent simulator.
+    directions over-widened the gains: on one fleet of the independent simulator the
+    channels' differences needed 1.4-3.1x, their common part 0.4-1.5x (that part carries the
+    sphere's lamp-level errors, shared by a campaign's units, so one fleet sees it 3 times;
+    over 12 fleets a unit's gain errors are 1.16x their claimed sd).
 
     ``shared_error``: the fraction of a unit's stage-one error variance that repeats in
     every campaign of its camera (the same channel model's systematic misfit of the same
