@@ -13,6 +13,7 @@ checked against the independent fleet simulator (``benchmarks/fleet_pooling.py``
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,7 +95,7 @@ class FleetSBC:
             index=counts.columns,
         )
 
-    def plot(self, path=None, bins: int = 10):
+    def plot(self, path: str | os.PathLike | None = None, bins: int = 10):
         """The rank histograms, a panel per quantity, with the 99 % band of uniform ranks
         (written atomically to ``path`` when given)."""
         from bayescal.io.files import atomic_path
