@@ -378,8 +378,8 @@ def _undetermined(name: str) -> str:
 
 
 def plot_curves(res: Characterization, path) -> None:
-    """Photon transfer, sensitivity and linearity-deviation curves (PNG), fit ranges shaded."""
-    from bayescal.report.figures import subplots
+    """Photon transfer, sensitivity and linearity-deviation curves (PNG, written atomically), fit ranges shaded."""
+    from bayescal.report.figures import save_figure, subplots
 
     c, r, p = res.curves, res.ranges, res.standard
     fig, axes = subplots(1, 3, figsize=(14, 4))
@@ -405,4 +405,4 @@ def plot_curves(res: Characterization, path) -> None:
     ax.axhline(0, color="0.5", lw=0.6)
     ax.set(xlabel="photons per pixel", ylabel="deviation (%)", title="linearity (5-95 % of saturation)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)

@@ -98,15 +98,13 @@ class FleetSBC:
     def plot(self, path: str | os.PathLike | None = None, bins: int = 10):
         """The rank histograms, a panel per quantity, with the 99 % band of uniform ranks
         (written atomically to ``path`` when given)."""
-        from bayescal.io.files import atomic_path
-        from bayescal.report.figures import rank_histograms
+        from bayescal.report.figures import rank_histograms, save_figure
 
         n = len(self.ranks)
         title = f"Fleet stage two: SBC rank histograms ({n} fleets; grey: 99 % band of uniform ranks)"
         fig = rank_histograms(self.histograms(bins), n, self.summary(bins).p_uniform, title)
         if path is not None:
-            with atomic_path(path) as tmp:
-                fig.savefig(tmp, dpi=110, format=str(path).rsplit(".", 1)[-1])
+            save_figure(fig, path)
         return fig
 
 

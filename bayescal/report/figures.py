@@ -11,7 +11,7 @@ from __future__ import annotations
 import base64
 import io
 
-__all__ = ["subplots", "colours", "png_base64", "rank_histograms"]
+__all__ = ["subplots", "colours", "png_base64", "rank_histograms", "save_figure"]
 
 
 def subplots(*args, figsize: tuple[float, float], **kwargs):
@@ -34,6 +34,14 @@ def png_base64(fig, dpi: int = 110) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def save_figure(fig, path, dpi: int = 110) -> None:
+    """Write the figure to ``path`` atomically, in the format its suffix names (``.png``, ``.pdf``, ...)."""
+    from bayescal.io.files import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=str(path).rsplit(".", 1)[-1])
 
 
 def rank_histograms(counts, n_sims: int, p_values, title: str):

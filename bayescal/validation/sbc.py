@@ -36,7 +36,7 @@ from bayescal.errors import SpecError, TableError
 from bayescal.fitting.batch import FitBatch, fit_models, with_data
 from bayescal.fitting.result import SAMPLED
 from bayescal.inference.program import program_for
-from bayescal.io.files import atomic_path, write_text_atomic
+from bayescal.io.files import write_text_atomic
 from bayescal.model.assemble import CalibrationModel
 from bayescal.model.data import check_levels_per_channel
 from bayescal.report.text import markdown_table
@@ -144,13 +144,12 @@ class SBCResult:
 
     def plot(self, path: str | os.PathLike | None = None):
         """Rank histograms, one panel per parameter, with the 99 % band of a uniform histogram."""
-        from bayescal.report.figures import rank_histograms
+        from bayescal.report.figures import rank_histograms, save_figure
 
         title = f"SBC rank histograms ({self.n_sims} datasets, {self.batch.backend}; grey: 99 % band)"
         fig = rank_histograms(self.histograms(), self.n_sims, self.p_values(), title)
         if path is not None:
-            with atomic_path(path) as tmp:
-                fig.savefig(tmp, dpi=110, format=str(path).rsplit(".", 1)[-1])
+            save_figure(fig, path)
         return fig
 
     def save(self, stem: str | os.PathLike) -> None:
