@@ -156,9 +156,12 @@ class FleetSpec:
     bulk or tail ESS is below ``[inference] min_ess`` (or their R-hat above ``max_rhat``)
     every chain continues for another
     ``draws`` draws, ``extend`` times at most (the trend and walk spreads of the log gain
-    trade off along a ridge that mixes slowly on some seeds).  Target 0.9: over 12 chains of a
-    20-camera, 12-level fleet it gave no divergent transition, where 0.85 gave 1 and 0.8 gave
-    2 (0.9 costs 1.26x the gradient evaluations of 0.8, 0.85 1.13x); a divergence fails the fit.
+    trade off along a ridge that mixes slowly on some seeds).  Warmup adapts the step size only
+    (the mass matrix is the Laplace approximation's, :mod:`bayescal.fleet.sampling`): 150
+    iterations and 500 draws per chain gave bulk and tail ESS of 440-920 on a 20-camera,
+    12-level fleet (12 seeds; one continued to 1000 draws).  Target 0.9: on those seeds 1 fit of
+    12 had a divergent transition (2 in 2000; run again at ``retry_target_accept``), where 0.8
+    gave 3-95 in every fit of 4; a divergence left after the retry fails the fit.
     """
 
     pooling: Literal["partial", "none", "complete"] = "partial"
@@ -175,8 +178,8 @@ class FleetSpec:
     shared_error: float = 0.5
     campaign_sd: float = 0.02
     chains: int = 4
-    draws: int = 600
-    warmup: int = 300
+    draws: int = 500
+    warmup: int = 150
     target_accept: float = 0.9
     extend: int = 2
 

@@ -318,6 +318,30 @@ def test_chains_continue_until_the_ess_target(small_fleet):
     np.testing.assert_allclose(cam_jit, cam, rtol=1e-6, atol=1e-9 * np.abs(cam).max())
 
 
+def test_the_laplace_start_is_the_mode_and_its_curvature(small_fleet):
+    """The chains' start and mass matrix: at the returned point the potential's gradient
+    vanishes, and the covariance is the inverse of a central-difference Hessian of the
+    gradient (not the automatic one the sampler uses)."""
+    import jax
+
+    from bayescal._config import numerics
+    from bayescal.fleet.sampling import _potential, laplace_start
+
+    fleet = fleet_from_frame(_frame(small_fleet), source="small")
+    data, plan = fleet_data(_Fits(fleet, 2, np.random.default_rng(1)), FleetSpec(walk=False), 0.03)
+    with numerics():
+        arrays = {k: jax.numpy.asarray(v) for k, v in data.arrays().items()}
+        mode, cov = laplace_start(plan, arrays)
+        grad = jax.jit(jax.grad(lambda u: _potential(plan)(u, arrays)))
+        g0 = np.asarray(grad(mode))
+        h = 1e-5
+        eye = np.eye(mode.size)
+        fd = np.stack([(np.asarray(grad(mode + h * e)) - np.asarray(grad(mode - h * e))) / (2 * h) for e in eye])
+    assert np.max(np.abs(g0)) < 1e-4 * max(1.0, np.max(np.abs(np.diag(fd))))
+    np.testing.assert_allclose(cov @ (0.5 * (fd + fd.T)), eye, atol=1e-4)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+
+
 def test_chains_with_a_divergence_are_run_again_at_the_retry_target(small_fleet, monkeypatch):
     """The policy of a unit's own NUTS fit: new chains at ``retry_target_accept``, whose diagnostics
     decide, with the first run's count kept (the sampler is replaced: no seed has to diverge)."""
@@ -331,12 +355,14 @@ def test_chains_with_a_divergence_are_run_again_at_the_retry_target(small_fleet,
 
     def chains(plan_, spec_, args, seed, inference):
         targets.append(spec_.target_accept)
-        return np.log(0.5) + 0.1 * np.random.default_rng(seed).standard_normal((2, 20, dim)), 3 - 3 * (len(targets) > 1)
+        draws = np.log(0.5) + 0.1 * np.random.default_rng(seed).standard_normal((2, 20, dim))
+        return draws, 3 - 3 * (len(targets) > 1), 1000
 
     monkeypatch.setattr(sampling, "_run_chains", chains)
     out = sampling.sample_fleet(data, plan, spec, seed=1, inference=InferenceSpec(retry_target_accept=0.97))
     assert targets == [spec.target_accept, 0.97]
     assert out.diagnostics["divergences"] == 0 and out.diagnostics["first_divergences"] == 3
+    assert out.diagnostics["gradients"] == 2000  # both runs counted
     targets.clear()
     off = sampling.sample_fleet(data, plan, spec, seed=1, inference=InferenceSpec(retry_target_accept=0.0))
     assert targets == [spec.target_accept] and off.diagnostics["divergences"] == 3
