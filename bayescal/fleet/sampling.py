@@ -250,6 +250,7 @@ def _run_chains(
             return list(pool.map(one, range(spec.chains)))
 
         half = spec.warmup // 2
+        # with the Laplace variances as the mass, the posterior is about unit scale: a first step of 0.5
         settle = phase(half, True, u0, np.full(spec.chains, 0.5), 0)
         warm = phase(spec.warmup - half, True, [o[0] for o in settle], [o[1] for o in settle], 1)
         steps = np.full(spec.chains, np.exp(np.mean([np.log(o[1]) for o in warm])))  # one for all: they share the mass

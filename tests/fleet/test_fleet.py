@@ -339,7 +339,27 @@ def test_the_laplace_start_is_the_mode_and_its_curvature(small_fleet):
         fd = np.stack([(np.asarray(grad(mode + h * e)) - np.asarray(grad(mode - h * e))) / (2 * h) for e in eye])
     assert np.max(np.abs(g0)) < 1e-4 * max(1.0, np.max(np.abs(np.diag(fd))))
     np.testing.assert_allclose(cov @ (0.5 * (fd + fd.T)), eye, atol=1e-4)
-    assert np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+def test_without_a_usable_mode_the_chains_sample_the_same_posterior(small_fleet, monkeypatch):
+    """The fallback (dispersed starts, unit mass matrix) and the Laplace start give the same
+    posterior of the log scales: means within 4 Monte Carlo standard errors of their difference."""
+    import arviz as az
+
+    import bayescal.fleet.sampling as sampling
+    from bayescal._config import numerics
+
+    fleet = fleet_from_frame(_frame(small_fleet), source="small")
+    data, plan = fleet_data(_Fits(fleet, 2, np.random.default_rng(1)), FleetSpec(walk=False), 0.03)
+    spec = FleetSpec(walk=False, chains=2, warmup=80, draws=250, extend=0)
+    args = data.arrays()
+    with numerics():
+        with_mode, _, _ = sampling._run_chains(plan, spec, args, seed=3)
+        monkeypatch.setattr(sampling, "laplace_start", lambda plan_, arrays: None)
+        without, _, _ = sampling._run_chains(plan, spec, args, seed=4)
+    for a, b in ((with_mode[..., i], without[..., i]) for i in range(with_mode.shape[-1])):
+        se = np.sqrt(a.var() / float(az.ess(a)) + b.var() / float(az.ess(b)))
+        assert abs(a.mean() - b.mean()) < 4 * se
 
 
 def test_chains_with_a_divergence_are_run_again_at_the_retry_target(small_fleet, monkeypatch):
