@@ -14,7 +14,7 @@ bayescal.validation.fleet).  In one run, on the same data:
 - one gradient of the log marginal likelihood: the closed form (posterior mean and
   covariance blocks) against reverse-mode differentiation through the factorisations.
 
-Usage: ``python benchmarks/fleet_speed.py [--cameras 20] [--repeats 2]``; results in
+Usage: ``python benchmarks/fleet_speed.py [--cameras 20] [--repeats 8]``; results in
 ``benchmarks/results/fleet_speed.{csv,md}``.
 """
 
@@ -140,7 +140,7 @@ def _time_chains() -> list[float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cameras", type=int, default=20)
-    ap.add_argument("--repeats", type=int, default=2, help="warm stage-two fits (seeds 1, 2, ...)")
+    ap.add_argument("--repeats", type=int, default=8, help="warm stage-two fits (seeds 1, 2, ...)")
     args = ap.parse_args()
     enable_numerics()
     spec = load_spec(ROOT / "models" / "fleet_seed000.toml")

@@ -182,7 +182,9 @@ def _latent_program(plan: Plan):
 
 def _latents(plan: Plan, hyper: dict, args: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """:func:`.model.conditional_draws` (the same normal variates, so the same draws) by the compiled
-    program, in chunks of :data:`DRAW_CHUNK` draws (the last one padded)."""
+    program, in chunks of :data:`DRAW_CHUNK` draws (the last one padded) on :data:`THREADS` threads."""
+    from concurrent.futures import ThreadPoolExecutor
+
     import jax
 
     sc, kappa = draw_scales(plan, hyper, args)
@@ -190,11 +192,14 @@ def _latents(plan: Plan, hyper: dict, args: dict, rng: np.random.Generator) -> t
     program = _latent_program(plan)
     arrays = jax.device_put(args)
     s = sc.shape[0]
-    parts = []
-    for i in range(0, s, DRAW_CHUNK):
+
+    def chunk(i: int) -> list[np.ndarray]:
         idx = np.minimum(np.arange(i, i + DRAW_CHUNK), s - 1)  # pad with the last draw
-        out = program(sc[idx], kappa[idx], arrays, z_g[idx], z_m[idx])
-        parts.append([np.asarray(o)[: min(DRAW_CHUNK, s - i)] for o in out])
+        out = jax.block_until_ready(program(sc[idx], kappa[idx], arrays, z_g[idx], z_m[idx]))
+        return [np.asarray(o)[: min(DRAW_CHUNK, s - i)] for o in out]
+
+    with ThreadPoolExecutor(THREADS) as pool:  # XLA releases the GIL while a chunk runs
+        parts = list(pool.map(chunk, range(0, s, DRAW_CHUNK)))
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
