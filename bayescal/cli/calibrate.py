@@ -102,7 +102,9 @@ def cmd_select(args) -> int:
         return 0
     table, spec = load_table(args.data), load_spec(args.model)
     off = tuple(x for x in args.without.split(",") if x)
-    specs = order_candidates(spec, tuple(int(o) for o in args.orders), off)
+    frame = table.frame
+    lit_gains = frame.loc[frame["stimulus"] > 0, "gain"].nunique()
+    specs = order_candidates(spec, tuple(int(o) for o in args.orders), off, domains=lit_gains > 1)
     from bayescal.cli.progress import stage_reporter
 
     stage_reporter()(f"fitting {len(specs)} candidate models ({args.backend}) for PSIS-LOO")

@@ -114,7 +114,11 @@ def build() -> argparse.ArgumentParser:
     ch.add_argument("--out", required=True, help="output directory")
     ch.add_argument("--seed", type=int, default=0, help=SEED_HELP)
     ch.set_defaults(func=cmd_characterize)
-    se = sub.add_parser("select", help="compare polynomial orders / components by PSIS-LOO (F-test beside it)")
+    se = sub.add_parser(
+        "select",
+        help="compare polynomial orders, components and where the nonlinearity arises (a table with a gain "
+        "sweep) by PSIS-LOO (F-test beside it)",
+    )
     se.add_argument("data", help="CSV or Parquet measurement table")
     se.add_argument("--model", required=True, help="base model spec (TOML)")
     se.add_argument("--orders", type=orders, default=[1, 2, 3], help="response orders 1-4 to compare (default 1,2,3)")

@@ -27,13 +27,25 @@ from bayescal.model.spec import ModelSpec
 __all__ = ["compare_specs", "order_candidates", "f_test_orders"]
 
 
-def order_candidates(spec: ModelSpec, orders=(1, 2, 3), extra_off: tuple[str, ...] = ()) -> dict[str, ModelSpec]:
+def order_candidates(
+    spec: ModelSpec, orders=(1, 2, 3), extra_off: tuple[str, ...] = (), domains: bool = False
+) -> dict[str, ModelSpec]:
     """Candidate specs: each polynomial order, and the spec without each named component.
 
     ``extra_off`` may name ``"level_errors"`` (per-level sphere errors),
-    ``"excess"`` (excess scatter) or ``"exposure_slope"`` (dark slope).
+    ``"excess"`` (excess scatter) or ``"exposure_slope"`` (dark slope).  ``domains`` adds, for
+    every nonlinear order, the nonlinearity of the other domain (the charge's before the gain,
+    the output's after it: :class:`~bayescal.model.components.response.ResponseSpec`); only a
+    table with several illuminated gains can tell them apart.
     """
     out = {f"order {o}": spec.replace(response={"order": o}) for o in orders}
+    if domains:
+        other = "output" if spec.response.nonlinearity_domain == "charge" else "charge"
+        for o in orders:
+            if o >= 2:
+                out[f"order {o}, nonlinearity of the {other}"] = spec.replace(
+                    response={"order": o, "nonlinearity_domain": other}
+                )
     switches = {
         "level_errors": {"sphere": {"per_level_rel": 0.0}},
         "excess": {"noise": {"excess_dn": 0.0}},

@@ -68,8 +68,8 @@ class Parts:
 
     @property
     def factors(self) -> tuple[StimulusFactor, ...]:
-        """The factors on the effective stimulus: the sphere's level errors, the settings, the effects."""
-        return (self.sphere, self.settings, *self.effects)
+        """The factors on the effective stimulus besides the settings': the sphere's level errors, the effects."""
+        return (self.sphere, *self.effects)
 
     def describe(self) -> list[str]:
         """Human-readable list of what the model contains."""
@@ -96,16 +96,21 @@ def _settings(spec: ModelSpec, layout: Layout) -> SettingFactors:
 def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
     """The numpyro model for one structure (cached, so compilations are reused)::
 
-    DN = dark + S(u * factors) (clipped at full scale) + noise
+    DN = dark + S_g(u * factors) (clipped at full scale) + noise
+
+    ``S_g`` is the response at the row's effective gain ``g`` (its nominal ratio times the
+    gain's effective factor): ``S`` itself for a nonlinearity of the output, ``g S(x / g)`` for
+    one of the charge (:meth:`~bayescal.model.components.response.Response.coefficients_at`).
     """
 
     def model(data: ModelData) -> None:
         coef = parts.response.sample()
-        multiplier = 1.0
+        multiplier, gain_factor = parts.settings.sample_with_gain(data)
         for factor in parts.factors:
             multiplier = multiplier * factor.sample(data)
         x = data.u * multiplier
-        signal = numpyro.deterministic("row_signal", parts.response.signal(coef[data.channel], x, _jnp()))
+        row_coef = parts.response.coefficients_at(coef[data.channel], data.g_rel * gain_factor, _jnp())
+        signal = numpyro.deterministic("row_signal", parts.response.signal(row_coef, x, _jnp()))
         offset = parts.dark.sample(data)
         var_mean = parts.noise.sample(data, signal)
         var_pix = parts.noise.nominal_pixel_variance(data, signal, _jnp())

@@ -163,8 +163,8 @@ def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndar
     coef = np.zeros((len(rows), order))
     for c, values in truth.response.items():
         coef[ch == c, : len(values)] = values
-    signal = Response.signal(coef, x)
     g_rel = g / spec.reference.gain
+    signal = Response.signal(Response(spec.response, len(truth.response)).coefficients_at(coef, g_rel), x)
     warm = 1.0
     if truth.dark_doubling_c is not None and "temperature_c" in rows:
         temp = rows["temperature_c"].to_numpy(dtype=float)

@@ -136,6 +136,7 @@ class Calibration:
     temperature_ref_c: float = 20.0
     doubling_c: np.ndarray | None = None  # (S,) dark-current doubling temperature; None: no T dependence
     factors: tuple[FactorTerm, ...] = ()  # factors on the effective stimulus: settings, effects (empty: exact)
+    charge_nonlinearity: bool = False  # the nonlinearity is the charge's (before the gain), not the output's
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -231,6 +232,7 @@ class Calibration:
             temperature_ref_c=spec.dark.temperature_ref_c,
             doubling_c=flat(draws["doubling_c"]) if "doubling_c" in draws else None,
             factors=_factor_terms(spec, draws, frame, flat),
+            charge_nonlinearity=spec.response.nonlinearity_domain == "charge",
         )
 
     @classmethod
@@ -338,11 +340,33 @@ class Calibration:
         offset, slope = self.dark_offset[:, c, column], self.dark_slope[:, column]
         return Dark.level(offset, slope, setting.exposure_s, gain_factor, warm)
 
-    def signal_dn(self, channel: str, x: np.ndarray, relative: bool = False) -> np.ndarray:
+    def gain_ratio(self, setting: Setting, channel: str | None = None) -> np.ndarray:
+        """Effective programmable gain per draw relative to the reference: ``g / g_ref`` times the
+        gain's effective factor (posterior where measured, a population draw where not)."""
+        ratio = np.full(self.n_draws, setting.gain / self.reference.gain)
+        for term in self.setting_factors:
+            if term.kind == "gain":
+                ratio = ratio * term.factor(channel, setting, self.n_draws)
+        return ratio
+
+    def coefficients(self, channel: str, setting: Setting | None = None, relative: bool = False) -> np.ndarray:
+        """Response coefficients ``A1..AP`` per draw, ``(S, P)``, at ``setting`` (None: the reference).
+
+        They are the reference's unless the nonlinearity is the charge's, whose coefficients at
+        effective gain ``g`` are ``A_k g^(1-k)`` (:meth:`~bayescal.model.components.response.Response.at_gain`).
+        """
+        coef = (self.coef_rel if relative else self.coef)[:, self.channel_index(channel), :]  # (S, P)
+        if self.charge_nonlinearity and setting is not None and coef.shape[-1] > 1:
+            coef = Response.at_gain(coef, self.gain_ratio(setting, channel))
+        return coef
+
+    def signal_dn(
+        self, channel: str, x: np.ndarray, relative: bool = False, setting: Setting | None = None
+    ) -> np.ndarray:
         """Signal (DN) per draw for effective stimulus ``x`` with the draws on its first axis
-        (shape ``(S, ...)``, or ``(1, ...)`` for the same ``x`` in every draw)."""
-        c = self.channel_index(channel)
-        coef = (self.coef_rel if relative else self.coef)[:, c, :]  # (S, P)
+        (shape ``(S, ...)``, or ``(1, ...)`` for the same ``x`` in every draw), at ``setting``'s gain
+        (None: the reference's; it matters only for a nonlinearity of the charge)."""
+        coef = self.coefficients(channel, setting, relative)
         x = np.asarray(x, dtype=float)
         return Response.signal(coef.reshape((coef.shape[0],) + (1,) * (x.ndim - 1) + coef.shape[1:]), x)
 
@@ -376,7 +400,7 @@ class Calibration:
             stimulus = stimulus[None, ...]
         x = stimulus * self.ratio(setting, channel).reshape((-1,) + (1,) * (stimulus.ndim - 1))
         dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * (stimulus.ndim - 1))
-        return dark + self.signal_dn(channel, x, relative)
+        return dark + self.signal_dn(channel, x, relative, setting)
 
     def sample_dn(
         self,

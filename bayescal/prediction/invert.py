@@ -127,8 +127,7 @@ def radiance_draws(
     signal = dn - cal.dark_dn(channel, setting)[None, :]
     if z is not None:  # the reading's own noise (its variance per draw, at the reading's signal)
         signal -= np.sqrt(cal.noise_var(signal.T, setting, n_avg, prnu).T) * z[None, :]
-    coef = (cal.coef_rel if relative else cal.coef)[:, cal.channel_index(channel), :]  # (S, P)
-    x = Response.inverse(coef, signal)
+    x = Response.inverse(cal.coefficients(channel, setting, relative), signal)
     x /= cal.ratio(setting, channel)[None, :]
     return x
 

@@ -118,7 +118,7 @@ def plan_exposure(
         except SpecError:
             continue  # a gain without dark calibration cannot be planned for
         x = stim * cal.ratio(setting, channel)
-        signal = cal.signal_dn(channel, x)
+        signal = cal.signal_dn(channel, x, setting=setting)
         sd = np.sqrt(cal.noise_var(signal, setting, n_avg))
         reading = Saturation.adc(dark + signal + sd * rng.standard_normal(signal.shape), cal.full_scale)
         why = cal.flags(setting, float(np.median(stim)))

@@ -53,6 +53,14 @@ class ResponseSpec:
     Normal(0, ``nonlinearity_prior_sd``).  The defaults are weakly
     informative; a lab that knows its camera class can say so (the SBC runs
     do, see :mod:`bayescal.validation.sbc`).
+
+    ``nonlinearity_domain`` says where the nonlinearity arises (seed 004's two sources):
+    ``"output"`` (DN/V: the amplifier and ADC, after the programmable gain) makes it a
+    function of the DN whatever the gain; ``"charge"`` (V/Q: the sense node, before the
+    gain) makes it a function of the collected charge, so at gain ``g`` (relative to the
+    reference, its effective factor included) the signal is ``g S(x / g)`` and the
+    coefficients are ``A_k g^(1-k)`` (:meth:`Response.at_gain`).  With one gain the two are
+    the same; with a gain sweep they differ, and ``bayescal select`` compares them by LOO.
     """
 
     order: int = 1
@@ -61,6 +69,7 @@ class ResponseSpec:
     gain_prior_median: float = 0.5
     gain_prior_log_sd: float = 2.0
     nonlinearity_prior_sd: float = 0.1
+    nonlinearity_domain: Literal["output", "charge"] = "output"
 
 
 @dataclass(frozen=True)
@@ -155,6 +164,21 @@ class Response(Component):
                 break
         return x
 
+    @staticmethod
+    def at_gain(coef, gain, xp=np):
+        """Coefficients of a charge-domain response at effective gain ``gain`` (relative to the
+        reference): ``A_k g^(1-k)``, so that ``S_g(x) = g S(x / g)`` (``coef[..., k - 1] = A_k``,
+        ``gain`` broadcast against ``coef[..., 0]``)."""
+        powers = xp.arange(coef.shape[-1])
+        return coef * xp.asarray(gain)[..., None] ** (-powers)
+
+    def coefficients_at(self, coef, gain, xp=np):
+        """The response's coefficients at effective gain ``gain``: :meth:`at_gain` for a nonlinearity
+        of the charge, ``coef`` unchanged for one of the output (or a linear response)."""
+        if self.spec.nonlinearity_domain == "charge" and self.n_terms:
+            return self.at_gain(coef, gain, xp)
+        return coef
+
     # ----------------------------------------------------------------- sampling
     def sample(self):
         """Sample gains ``G`` (C,) and nonlinearity ``eta`` (C, order-1); returns the monomial
@@ -189,9 +213,10 @@ class Response(Component):
 
     # ---------------------------------------------------------------- reporting
     def describe(self) -> str:
-        return f"response: order {self.spec.order}" + (
-            ", pooled nonlinearity" if self.n_terms and self.spec.pooled else ""
-        )
+        out = f"response: order {self.spec.order}"
+        if self.n_terms:
+            out += f", nonlinearity of the {self.spec.nonlinearity_domain}" + (", pooled" if self.spec.pooled else "")
+        return out
 
     def physical(self, draws, ctx) -> dict[str, np.ndarray]:
         """Monomials ``A_rel`` (DN per stimulus unit^k at the reference setting; ``A0`` left 0, the dark

@@ -120,9 +120,14 @@ class SettingFactors(StimulusFactor):
 
     def sample(self, data):
         """Per-row multiplier of the effective stimulus (1 when no kind is active)."""
+        return self.sample_with_gain(data)[0]
+
+    def sample_with_gain(self, data):
+        """Per-row multiplier of the effective stimulus, and the gain's part of it (the effective
+        factor of the row's programmable gain; 1 when that kind is not active)."""
         active = self.active()
         if not active:
-            return 1.0
+            return 1.0, 1.0
         import jax.numpy as jnp
         import numpyro
         import numpyro.distributions as dist
@@ -134,7 +139,8 @@ class SettingFactors(StimulusFactor):
             tol = getattr(self.spec, KINDS[kind][2])
             logf = numpyro.sample(f"{kind}_log", dist.Normal(0.0, tol).expand([n_free]).to_event(1))
             per_row.append(self.log_factors(kind, logf, jnp)[getattr(data, KINDS[kind][1])])
-        return self.factor(jnp.stack(per_row, axis=-1), jnp)
+        gain = jnp.exp(per_row[active.index("gain")]) if "gain" in active else 1.0
+        return self.factor(jnp.stack(per_row, axis=-1), jnp), gain
 
     def describe(self) -> str:
         active, sizes = self.active(), dict(self.sizes)
