@@ -88,6 +88,7 @@ class Plan:
     walk_prior: float
     excess: bool = True
     excess_prior: float = 2.0
+    excess_together_prior: float = 0.1
     max_units: int = 0
     jitter_prior: float = 0.3
     shared: bool = False
@@ -128,6 +129,16 @@ class Plan:
     @property
     def jitter_base(self) -> int:
         return 2 + self.n_channels + max(self.max_walk, 0)
+
+    def excess_priors(self) -> np.ndarray:
+        """The half-normal prior scale of each ``kappa - 1``, ``(K * D,)`` (kind-major, as sampled):
+        ``excess_together_prior`` where the channels move together in a kind with a campaign jitter
+        (that excess and the jitter are one value per unit each, :class:`~bayescal.model.spec.FleetSpec`),
+        ``excess_prior`` elsewhere."""
+        scales = np.full((self.n_kinds, self.n_directions), self.excess_prior)
+        if self.jitter:
+            scales[: self.n_drift, 0] = self.excess_together_prior
+        return scales.reshape(-1)
 
     def sampled(self) -> dict[str, int]:
         """The scales NUTS samples and their sizes."""
@@ -265,6 +276,7 @@ def fleet_data(fits: UnitFits, fleet_spec: FleetSpec, common_rel: float) -> tupl
         walk_prior=fleet_spec.walk_prior,
         excess=fleet_spec.excess,
         excess_prior=fleet_spec.excess_prior,
+        excess_together_prior=fleet_spec.excess_together_prior,
         max_units=max_units,
         jitter_prior=fleet_spec.jitter_prior,
         shared=rho > 0,

@@ -49,14 +49,15 @@ THREADS = 2
 
 
 def scale_priors(plan: Plan) -> dict[str, float]:
-    """The half-normal prior scale of every sampled log scale of stage two."""
+    """The half-normal prior scale of every sampled scale of stage two (of ``kappa - 1`` for the
+    excess: one per kind and direction, :meth:`~.model.Plan.excess_priors`)."""
     return {
         "sigma_camera": plan.spread_prior,
         "sigma_channel": plan.spread_prior,
         "rate_sd": plan.rate_prior,
         "walk_sd": plan.walk_prior,
         "jitter_sd": plan.jitter_prior,
-        "excess": plan.excess_prior,
+        "excess": plan.excess_priors(),
     }
 
 

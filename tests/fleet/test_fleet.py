@@ -14,9 +14,10 @@ import pandas as pd
 import pytest
 
 from bayescal import load_spec
-from bayescal.errors import TableError
+from bayescal.errors import SpecError, TableError
 from bayescal.fleet.excess import weighted
 from bayescal.fleet.model import (
+    Plan,
     _integrated,
     block_scales,
     conditional_draws,
@@ -433,9 +434,28 @@ def test_small_fleet_samples_cleanly_and_covers_the_truth(fitted):
     for q, c in covered.items():
         # 51 correlated values; honest 95 % intervals cover >= 40 of them with probability > 0.99 here
         assert c.sum() >= 40, (q, c.mean())
+    # where the channels move together the excess and the campaign's own state add one variance per unit
+    # each and are not identified apart: the state carries it, so the fleet does not widen a unit's relative
+    # gain much beyond its own interval (median 1.11x; with the excess's wide prior there, 1.60x)
+    own_sd = np.sqrt(np.diagonal(result.unit_cov, axis1=1, axis2=2)[:, : len(result.channels)])  # (U, C)
+    assert np.median(np.log(rel).std(axis=0) / own_sd) < 1.25
     # the brief camera (3 levels) borrows the fleet's nonlinearity: narrower than alone
     brief = s[s.camera == "SN006"]
     assert np.all((brief.eta1_hi - brief.eta1_lo) < 2 * 1.96 * brief.eta1_alone_sd)
+
+
+def test_the_excess_where_the_channels_move_together_yields_to_the_jitter(tmp_path):
+    """The tight prior sits only where the excess and the campaign jitter are the same value per unit."""
+    base = dict(n_channels=3, n_cameras=4, n_units=12, n_spheres=3, n_walk=8, max_walk=2, drift=True, walk=True)
+    base |= dict(pooling="partial", spread_prior=1.0, rate_prior=0.5, walk_prior=0.3, excess_prior=2.0)
+    plan = Plan(n_kinds=3, max_units=3, excess_together_prior=0.1, **base)
+    np.testing.assert_array_equal(plan.excess_priors(), [0.1, 2.0, 0.1, 2.0, 2.0, 2.0])  # eta has no jitter
+    no_jitter = Plan(n_kinds=3, max_units=0, excess_together_prior=0.1, **base)
+    np.testing.assert_array_equal(no_jitter.excess_priors(), np.full(6, 2.0))
+    bad = tmp_path / "fleet.toml"
+    bad.write_text(SPEC.read_text().replace("\n[fleet]\n", "\n[fleet]\nexcess_together_prior = 0.0\n"))
+    with pytest.raises(SpecError, match="excess_together_prior"):
+        load_spec(bad)
 
 
 def test_predictions_for_new_cameras_dates_and_drift(fitted):
