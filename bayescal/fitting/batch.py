@@ -25,6 +25,7 @@ from bayescal._config import computes
 from bayescal.errors import SpecError
 from bayescal.fitting.result import OUTLIER_Z, SAMPLED, Fit, finish, misfit_of, row_summaries
 from bayescal.inference import registry as backends
+from bayescal.inference.guide import guide_pooled, pools
 from bayescal.inference.laplace import LaplaceResult, laplace, laplace_many
 from bayescal.inference.lsq import lsq_baseline
 from bayescal.inference.program import Program, program_for
@@ -257,6 +258,9 @@ def fit_models(
     if vectorize is None:
         vectorize = jax.default_backend() != "cpu"
     say = stage or (lambda message: None)
+    if any(pools(m) for m in models):
+        say("guiding the pooled channels: each channel's own Laplace fit (the unpooled model)")
+        models = guide_pooled(models)
     say("finding the posterior mode (the first fit of a model structure compiles it; cached afterwards)")
     program = program_for(models[0])
     timings = {"prepare": prepare_s}

@@ -46,6 +46,14 @@ class NutsDraws(NamedTuple):
     step_size: np.ndarray
     #: divergent transitions of a first attempt that was rerun with smaller steps (0: no rerun)
     first_divergences: int = 0
+    #: the target acceptance of the run these draws come from, when it was a rerun (0: none)
+    rerun_at: float = 0.0
+
+
+#: the last rerun's target acceptance: a few divergences left after the spec's retry get one more run here
+LAST_RETRY_ACCEPT = 0.99
+#: ... when they are at most this fraction of the draws (more: a posterior smaller steps will not mend)
+LAST_RETRY_MAX_FRACTION = 0.01
 
 
 _EVERY = 50
@@ -200,15 +208,20 @@ def _run_many(program, datas, starts, covs, settings, seeds, done) -> list[NutsD
         pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown()
-    fields = range(len(NutsDraws._fields) - 1)
+    fields = range(len(NutsDraws._fields) - 2)
     outs = [
         NutsDraws(*(np.stack([np.asarray(c[k]) for c in chains[i * n : (i + 1) * n]]) for k in fields))
         for i in range(len(datas))
     ]
     again = [i for i, o in enumerate(outs) if o.diverging.any()]
-    if again and settings.retry_target_accept > settings.target_accept:
-        # divergences: a region of high curvature (a scale near zero); rerun those datasets once with smaller steps
-        retry = replace(settings, target_accept=settings.retry_target_accept)
+    target = settings.retry_target_accept
+    if settings.target_accept >= target > 0:  # the spec's retry was this run: one last, smaller-step one
+        target = LAST_RETRY_ACCEPT
+        again = [i for i in again if outs[i].diverging.mean() <= LAST_RETRY_MAX_FRACTION]
+    if again and target > settings.target_accept:
+        # divergences: a region of high curvature (a scale near zero); rerun those datasets with smaller steps:
+        # at the spec's retry_target_accept, and once more at LAST_RETRY_ACCEPT if some are left
+        retry = replace(settings, target_accept=target, retry_target_accept=target)
         redo = _run_many(
             program,
             [datas[i] for i in again],
@@ -219,5 +232,6 @@ def _run_many(program, datas, starts, covs, settings, seeds, done) -> list[NutsD
             None,
         )
         for i, out in zip(again, redo, strict=True):
-            outs[i] = out._replace(first_divergences=int(outs[i].diverging.sum()))
+            first = outs[i].first_divergences or int(outs[i].diverging.sum())
+            outs[i] = out._replace(first_divergences=first, rerun_at=out.rerun_at or target)
     return outs

@@ -69,7 +69,7 @@ def note_retry(out, settings, extra: dict) -> None:
     if out.first_divergences:
         extra["retried"] = (
             f"{out.first_divergences} divergent transitions at target_accept {settings.target_accept:g}; "
-            f"chains rerun at {settings.retry_target_accept:g}"
+            f"chains rerun at {out.rerun_at:g}"
         )
 
 

@@ -39,12 +39,7 @@ def initial_point(model: CalibrationModel, program: Program) -> jnp.ndarray:
     init = {k: np.asarray(v) for k, v in program.unravel(program.z0).items()}
     values = _constrained_defaults(program, model)
     values.update({"b0": b0 if not prop else b0[:, :1], "G": gains})
-    if "b0_mu" in values:
-        values["b0_mu"] = values["b0"].mean(axis=0)
-    if "logG_mu" in values:
-        values["logG_mu"] = np.log(gains).mean()
-        values["logG_z"] = np.zeros(c)
-        values.pop("G")
+    # pooled values (deterministic here, left out below) start at their guided conditional means: w = 0
     if "excess" in values:
         values["excess"] = max(rms, 1e-6)
     values = {k: v for k, v in values.items() if k in init}

@@ -104,7 +104,7 @@ def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
     """
 
     def model(data: ModelData) -> None:
-        coef = parts.response.sample()
+        coef = parts.response.sample(data)
         multiplier, gain_factor = parts.settings.sample_with_gain(data)
         for factor in parts.factors:
             multiplier = multiplier * factor.sample(data)
@@ -160,4 +160,5 @@ def build_model(table: MeasurementTable, spec: ModelSpec) -> CalibrationModel:
     data, layout = prepare(table, spec)
     parts = Parts.from_spec(spec, layout, np.asarray(data.level_sigma), table.frame)
     extra = {k: np.asarray(v, dtype=float) for e in parts.effects for k, v in e.inputs(table.frame).items()}
+    extra |= parts.response.guides() | parts.dark.guides()
     return CalibrationModel(spec=spec, table=table, data=data._replace(extra=extra), layout=layout, parts=parts)

@@ -17,7 +17,7 @@ from typing import Literal
 import numpy as np
 
 from bayescal.model.components.base import Component
-from bayescal.model.components.priors import scale_prior
+from bayescal.model.components.priors import guide_inputs, pooled_normal, scale_prior
 
 __all__ = ["Dark", "DarkSpec"]
 
@@ -76,6 +76,8 @@ class Dark(Component):
         "b1": ("gain_setting",),
         "b0_mu": ("gain_setting",),
         "b0_tau": (),
+        "b0_w": ("channel", "gain_setting"),
+        "b0_mu_w": ("gain_setting",),
         "T_d": (),
         "drift": (),
     }
@@ -114,6 +116,17 @@ class Dark(Component):
         return xp.exp2(delta_c / doubling_c)
 
     # ----------------------------------------------------------------- sampling
+    @property
+    def pools_offsets(self) -> bool:
+        """The channels' offsets are pooled."""
+        return self.spec.pooled and self.n_channels > 1
+
+    def guides(self) -> dict[str, np.ndarray]:
+        """Neutral guide of the pooled offsets (``ModelData.extra``; see :func:`pooled_normal`)."""
+        if not self.pools_offsets:
+            return {}
+        return guide_inputs("b0", (self.n_channels, 1 if self.proportional else self.n_gains))
+
     def sample(self, data):
         """Sample the offset parameters and return the per-row scaled dark level."""
         import jax.numpy as jnp
@@ -121,11 +134,9 @@ class Dark(Component):
         import numpyro.distributions as dist
 
         c, g = self.n_channels, 1 if self.proportional else self.n_gains
-        if self.spec.pooled and c > 1:
-            prior = dist.Normal(self.spec.offset_prior_mean, self.spec.offset_prior_sd)
-            mu = numpyro.sample("b0_mu", prior.expand([g]).to_event(1))
+        if self.pools_offsets:
             tau = numpyro.sample("b0_tau", scale_prior(OFFSET_TAU_SD))
-            b0 = numpyro.sample("b0", dist.Normal(mu, tau).expand([c, g]).to_event(2))
+            b0 = pooled_normal("b0", self.spec.offset_prior_mean, self.spec.offset_prior_sd, tau, data, (c, g))
         else:
             prior = dist.Normal(self.spec.offset_prior_mean, self.spec.offset_prior_sd)
             b0 = numpyro.sample("b0", prior.expand([c, g]).to_event(2))

@@ -19,7 +19,7 @@ import numpy as np
 
 from bayescal.model.basis import response_monomials
 from bayescal.model.components.base import Component
-from bayescal.model.components.priors import scale_prior
+from bayescal.model.components.priors import guide_inputs, pooled_normal, scale_prior
 
 __all__ = ["Response", "ResponseSpec"]
 
@@ -38,12 +38,14 @@ class ResponseSpec:
     ``S = G x`` (docs/architecture.md, section 2).  ``pooled`` partially pools the
     nonlinearity across channels (it is a property of the sense node and ADC,
     shared by all colours); ``gain_prior = "pooled"`` also pools the
-    per-channel log gains.  Pooling is off by default: NUTS does not yet
-    sample the pooled models (the Laplace whitening taken at the mode
-    degenerates in the pooling scales; a fit reports R-hat ~2 and fails
-    loudly), and the Laplace backend refuses them.  Channels are pooled by
-    the fleet hierarchy instead (:class:`~bayescal.model.spec.FleetSpec`, ``bayescal fleet``),
-    which integrates its scales.
+    per-channel log gains.  The pooled values are drawn in coordinates whitened
+    by what the data alone say of them (:func:`~bayescal.model.components.priors.pooled_normal`,
+    guided by the unpooled model's Laplace fit), so NUTS samples them whether the channels agree
+    or differ; the Laplace backend refuses them (the Gaussian at the joint mode has no honest
+    width for a pooling scale from three channels).  Pooling is off by default: with three
+    colour channels and a full radiance sweep it buys little (README, "Pooling channels within
+    one camera").  Cameras of a fleet are pooled by :class:`~bayescal.model.spec.FleetSpec`
+    (``bayescal fleet``).
 
     Priors, in the model's scaled units (docs/architecture.md, section 5): the gain ``G``
     is the linear signal at the brightest stimulus of the table as a
@@ -82,9 +84,13 @@ class Response(Component):
         "eta": ("channel", "nl_term"),
         "logG_mu": (),
         "logG_tau": (),
-        "logG_z": ("channel",),
+        "logG": ("channel",),
+        "logG_w": ("channel",),
+        "logG_mu_w": (),
         "eta_mu": ("nl_term",),
         "eta_tau": ("nl_term",),
+        "eta_w": ("channel", "nl_term"),
+        "eta_mu_w": ("nl_term",),
     }
     reported = {
         "gain": ("channel",),
@@ -180,7 +186,24 @@ class Response(Component):
         return coef
 
     # ----------------------------------------------------------------- sampling
-    def sample(self):
+    @property
+    def pools_gain(self) -> bool:
+        """The channels' log gains are pooled."""
+        return self.spec.gain_prior == "pooled"
+
+    @property
+    def pools_nonlinearity(self) -> bool:
+        """The channels' nonlinearity coefficients are pooled."""
+        return self.spec.pooled and self.n_channels > 1 and self.n_terms > 0
+
+    def guides(self) -> dict[str, np.ndarray]:
+        """Neutral guides of the pooled sites (``ModelData.extra``; see :func:`pooled_normal`)."""
+        out = guide_inputs("logG", (self.n_channels,)) if self.pools_gain else {}
+        if self.pools_nonlinearity:
+            out |= guide_inputs("eta", (self.n_channels, self.n_terms))
+        return out
+
+    def sample(self, data):
         """Sample gains ``G`` (C,) and nonlinearity ``eta`` (C, order-1); returns the monomial
         coefficients ``A_1..A_p`` of every channel's signal in the scaled stimulus, (C, p)."""
         import jax.numpy as jnp
@@ -192,20 +215,17 @@ class Response(Component):
             log_median = float(np.log(self.spec.gain_prior_median))
             gain = numpyro.sample("G", dist.LogNormal(log_median, self.spec.gain_prior_log_sd).expand([c]).to_event(1))
         elif self.spec.gain_prior == "pooled":
-            mu = numpyro.sample("logG_mu", dist.Normal(0.0, 2.0))
             tau = numpyro.sample("logG_tau", scale_prior(1.0))
-            z = numpyro.sample("logG_z", dist.Normal(0.0, 1.0).expand([c]).to_event(1))
-            gain = numpyro.deterministic("G", jnp.exp(mu + tau * z))
+            gain = numpyro.deterministic("G", jnp.exp(pooled_normal("logG", 0.0, 2.0, tau, data, (c,))))
         else:
             median = self.spec.gain_prior_median
             gain = numpyro.sample("G", dist.Normal(median, NORMAL_GAIN_SD_FACTOR * median).expand([c]).to_event(1))
         eta = None
         if self.n_terms:
             k = self.n_terms
-            if self.spec.pooled and c > 1:
-                mu = numpyro.sample("eta_mu", dist.Normal(0.0, self.spec.nonlinearity_prior_sd).expand([k]).to_event(1))
+            if self.pools_nonlinearity:
                 tau = numpyro.sample("eta_tau", scale_prior(ETA_TAU_SD).expand([k]).to_event(1))
-                eta = numpyro.sample("eta", dist.Normal(mu, tau).expand([c, k]).to_event(2))
+                eta = pooled_normal("eta", 0.0, self.spec.nonlinearity_prior_sd, tau, data, (c, k))
             else:
                 prior = dist.Normal(0.0, self.spec.nonlinearity_prior_sd).expand([c, k]).to_event(2)
                 eta = numpyro.sample("eta", prior)
