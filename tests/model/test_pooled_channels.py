@@ -114,6 +114,6 @@ def test_pooled_seed000_channels_sample_cleanly_and_cover(seed000):
         rel = fit.draws("A_rel")
         for ci, c in enumerate(fit.model.layout.channels):
             lo, hi = np.quantile(rel[:, ci, 1:3], [0.025, 0.975], axis=0)
-            truth = sim.truth_coefficients(c, relative=True)
+            truth = sim.true_coefficients(c, relative=True)
             hits += list((lo <= truth) & (truth <= hi))
     assert sum(hits) >= 15, hits
