@@ -38,13 +38,13 @@ def _unpooled(spec):
 
 def guide_pooled(models: Sequence[CalibrationModel]) -> list[CalibrationModel]:
     """``models`` with the guides of their pooled values set from their unpooled twins' Laplace
-    fits (mode and marginal sd in the unconstrained space: log gain, nonlinearity, offset).
+    fits, in the unconstrained space (log gain, nonlinearity, offset): the mode, the conditional
+    sd given every other latent (``1 / sqrt`` of the precision's diagonal; the values' view) and
+    the marginal sd (the population mean's view, every channel's other latents free).
 
     Models without pooled values, and models without a table to refit (datasets built
     from arrays), are returned unchanged (their guide stays neutral: the non-centred form).
     """
-    if not any(pools(m) for m in models):
-        return list(models)
     out = []
     for model in models:
         if not pools(model) or model.table is None:
