@@ -13,8 +13,8 @@ The coverage's Monte Carlo sd (``coverage_mc_sd``) is taken over campaigns (the 
 of one campaign share its lamp errors), so settling whether a coverage of 0.88 is short
 of 0.95 takes a hundred-odd campaigns, not the 24 of the pooling benchmark.
 
-Usage: ``python benchmarks/fleet_lamp_errors.py [--seeds 6] [--lamp-only]``; results in
-``benchmarks/results/fleet_lamp_errors.{csv,md}``.
+Usage: ``python benchmarks/fleet_lamp_errors.py [--seeds 6] [--first 100] [--lamp-only] [--out STEM]``;
+results in ``benchmarks/results/fleet_lamp_errors.{csv,md}`` (or the ``--out`` stem).
 """
 
 from __future__ import annotations
@@ -92,18 +92,20 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=6)
+    ap.add_argument("--first", type=int, default=100, help="first simulator seed")
+    ap.add_argument("--out", default="fleet_lamp_errors", help="results stem under benchmarks/results")
     ap.add_argument("--lamp-only", action="store_true", help="only the fleets with lamp errors (no control)")
     args = ap.parse_args()
     spec = load_spec(ROOT / "models" / "fleet_seed000.toml")
     rows = []
     for level_rel in (0.005,) if args.lamp_only else (0.005, 0.0):
-        for seed in range(100, 100 + args.seeds):
+        for seed in range(args.first, args.first + args.seeds):
             rows += run(seed, level_rel, spec)
             print(f"lamp errors {level_rel}: seed {seed} done", flush=True)
     table = summarise(pd.DataFrame(rows))
-    out = ROOT / "benchmarks" / "results" / "fleet_lamp_errors"
+    out = ROOT / "benchmarks" / "results" / args.out
     table.to_csv(out.with_suffix(".csv"), index=False, float_format="%.5g")
-    seeds = list(range(100, 100 + args.seeds))
+    seeds = list(range(args.first, args.first + args.seeds))
     text = [
         "# A unit's relative-gain error: its campaign's lamp-level errors",
         "",
