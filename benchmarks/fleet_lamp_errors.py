@@ -43,20 +43,27 @@ def run(seed: int, level_rel: float, spec) -> list[dict]:
     fits = fit_units(fleet, spec, "laplace", seed=seed)
     result = fit_fleet(fleet, spec, fits=fits, seed=seed + 1)
     pooled = np.exp(result.unit_values(relative=True)[:, :, 0, :])  # (S, U, C)
+    rows = relative_gain_rows(fits, truth, pooled)
+    return [{"lamp_errors": level_rel > 0, "seed": seed} | r for r in rows]
+
+
+def relative_gain_rows(fits, truth: pd.DataFrame, pooled: np.ndarray | None = None) -> list[dict]:
+    """Per unit and channel, for the unit's own fit (``alone``) and, given its draws ``(S, U, C)``,
+    the fleet's (``pooled``): the campaign, ``z`` (posterior mean - truth) / sd, ``sd_rel`` and
+    whether the 95 % interval holds the gain against the campaign's sphere reading."""
     t = truth.set_index(["camera", "campaign", "channel"])
     rows = []
-    for u, unit in enumerate(fleet.units):
+    for u, unit in enumerate(fits.fleet.units):
         day = unit.campaign.date().isoformat()
         a_rel = np.asarray(fits.physical(u)["A_rel"])
         a_rel = a_rel.reshape((-1,) + a_rel.shape[2:])
         for c, ch in enumerate(fits.channels):
             true = t.loc[(unit.camera, day, ch), "gain"] * t.loc[(unit.camera, day, ch), "sphere_scale"]
-            for how, v in (("alone", a_rel[:, c, 1]), ("pooled", pooled[:, u, c])):
+            draws = [("alone", a_rel[:, c, 1])] + ([] if pooled is None else [("pooled", pooled[:, u, c])])
+            for how, v in draws:
                 lo, hi = np.quantile(v, [0.025, 0.975])
                 rows.append(
                     {
-                        "lamp_errors": level_rel > 0,
-                        "seed": seed,
                         "campaign": day,
                         "method": how,
                         "z": (v.mean() - true) / v.std(),

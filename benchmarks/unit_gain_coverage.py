@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from fleet_lamp_errors import relative_gain_rows  # run as a script: its folder is on the path
 
 from bayescal import load_spec
 from bayescal.fleet.stage1 import fit_units
@@ -38,18 +39,7 @@ def run(seed: int, spec, pixels: int, frames: int, cameras: int = 2) -> list[dic
     table, truth = simulate_fleet(design, seed=seed)
     fleet = fleet_from_frame(table.astype(str), source=f"fleet {cameras}x3 seed {seed}")
     fits = fit_units(fleet, spec, "laplace", seed=seed)
-    t = truth.set_index(["camera", "campaign", "channel"])
-    rows = []
-    for u, unit in enumerate(fleet.units):
-        day = unit.campaign.date().isoformat()
-        a_rel = np.asarray(fits.physical(u)["A_rel"])
-        a_rel = a_rel.reshape((-1,) + a_rel.shape[2:])
-        for c, ch in enumerate(fits.channels):
-            true = t.loc[(unit.camera, day, ch), "gain"] * t.loc[(unit.camera, day, ch), "sphere_scale"]
-            v = a_rel[:, c, 1]
-            lo, hi = np.quantile(v, [0.025, 0.975])
-            rows.append({"seed": seed, "campaign": day, "z": (v.mean() - true) / v.std(), "covered": lo <= true <= hi})
-    return rows
+    return [{"seed": seed} | r for r in relative_gain_rows(fits, truth)]
 
 
 def main() -> None:
@@ -85,8 +75,6 @@ def main() -> None:
     table = pd.DataFrame([summary])
     if csv.exists():
         old = pd.read_csv(csv)
-        if "cameras" not in old:
-            old.insert(0, "cameras", 2)
         same = (old.pixels_x_frames == summary["pixels_x_frames"]) & (old.cameras == args.cameras)
         same &= old.seeds == summary["seeds"]
         table = pd.concat([old[~same], table], ignore_index=True)
