@@ -52,8 +52,9 @@ class NutsDraws(NamedTuple):
 
 #: the last rerun's target acceptance: a few divergences left after the spec's retry get one more run here
 LAST_RETRY_ACCEPT = 0.99
-#: ... when they are at most this fraction of the draws (more: a posterior smaller steps will not mend)
-LAST_RETRY_MAX_FRACTION = 0.01
+#: ... when they are at most this fraction of the draws (more: a posterior smaller steps will not mend).
+#: The pooled seed-000 channels (model-simulated seed 5) left 50 of 4000 (1.25 %) at 0.95 and none at 0.99
+LAST_RETRY_MAX_FRACTION = 0.02
 
 
 _EVERY = 50

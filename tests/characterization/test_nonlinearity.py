@@ -49,6 +49,7 @@ def test_correction_linearises_the_response():
     assert np.max(np.abs(dev[2:])) < 0.002 < np.max(np.abs(raw))  # ~6 % compression removed to < 0.2 %
 
 
+@pytest.mark.slow  # 90 sensors; the default run checks each model's comparison on one sensor per type
 def test_hit_rates_over_30_random_sensors_per_type():
     """>= 30 sensors per type with random gain, read noise, PRNU and nonlinearity strength (4-12 % at full scale)."""
     rng = np.random.default_rng(2026)

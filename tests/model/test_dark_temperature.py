@@ -62,6 +62,7 @@ def test_temperature_column_required(seed000):
         bc.fit(sim.table, spec.replace(dark={"temperature": True}), "laplace")
 
 
+@pytest.mark.slow  # 12 calibrations; the default run recovers T_d on one (test_doubling_temperature_recovered)
 def test_doubling_temperature_coverage(seed000):
     """12 simulated cameras with T_d = 7 degC: the 95 % intervals cover it at the nominal rate."""
     spec, design = thermal_camera(*seed000)

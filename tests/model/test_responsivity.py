@@ -50,6 +50,7 @@ def test_the_effect_is_fitted_and_reported(thermal_fit):
         assert row["q97.5"] - row["q2.5"] < 0.002  # three temperatures 20 degC apart pin it to ~0.1 %/K
 
 
+@pytest.mark.slow  # 12 calibrations; the default run checks the fitted effect and its predictions on one
 def test_intervals_cover_the_truth_over_repeated_calibrations(seed000):
     """12 simulated calibrations x 3 channels: 95 % intervals of the coefficient cover at the nominal rate
     (at least 30 of 36; P = 0.004 for a correctly calibrated interval to fall below)."""

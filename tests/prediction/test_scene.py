@@ -44,7 +44,7 @@ def quadratic(seed000):
 
 
 def _scene(lo, hi, seed=0):
-    return np.random.default_rng(seed).integers(lo, hi, size=(120, 160)).astype(np.uint16)
+    return np.random.default_rng(seed).integers(lo, hi, size=(60, 80)).astype(np.uint16)
 
 
 def test_quadratic_camera_needs_order_two(quadratic):

@@ -115,6 +115,7 @@ def test_sbc_laplace_seed000(laplace_sbc):
     assert res.batch.converged.all()
 
 
+@pytest.mark.slow  # 25 NUTS fits; the 200-dataset runs are benchmarks/results/sbc_seed002_nuts*.md
 def test_sbc_nuts_seed002():
     model = _model("seed002_tdi.toml", "seed002_design.toml")
     spec = model.spec.replace(inference={"chains": 2, "draws": 500, "warmup": 300, "min_ess": 200})
