@@ -65,7 +65,7 @@ def find_map(program: Program, data: ModelData, z0: jax.Array | None = None, rou
         return jnp.asarray(z), True, steps
     z = jnp.asarray(z)
     for _ in range(rounds):
-        precond = _preconditioner(np.asarray(program.hessian(z, data)))
+        precond = _whitening(np.asarray(program.hessian(z, data)))
         sol = _WHITENED_BFGS(program.potential, z, jnp.asarray(precond), data)
         steps += int(sol.stats["num_steps"])
         z = z + jnp.asarray(precond) @ sol.value
@@ -108,7 +108,7 @@ def _newton(program: Program, data: ModelData, z: np.ndarray) -> tuple[np.ndarra
     for step in range(NEWTON_STEPS):
         if not (np.isfinite(value) and np.all(np.isfinite(grad))):
             return z, False, step
-        precond = _preconditioner(np.asarray(program.hessian(z, data)))
+        precond = _whitening(np.asarray(program.hessian(z, data)))
         g_w = precond.T @ grad  # the gradient in whitened coordinates
         decrement = float(g_w @ g_w)
         if decrement < NEWTON_DECREMENT or polish == POLISH_STEPS:
@@ -135,13 +135,15 @@ def _newton(program: Program, data: ModelData, z: np.ndarray) -> tuple[np.ndarra
     return z, False, NEWTON_STEPS
 
 
-def _preconditioner(hess: np.ndarray) -> np.ndarray:
+def _whitening(hess, xp=np):
+    """``P`` with ``P' H P`` the identity for the symmetrised Hessian ``H``, from its eigenvalues'
+    magnitudes floored at :data:`EIGENVALUE_FLOOR` of the largest; the identity where ``H`` is
+    not finite.  Written once for numpy (one fit at a time) and ``jax.numpy`` (the vmapped search)."""
     hess = 0.5 * (hess + hess.T)
-    if not np.all(np.isfinite(hess)):
-        return np.eye(hess.shape[0])
-    w, v = np.linalg.eigh(hess)
-    w = np.maximum(np.abs(w), EIGENVALUE_FLOOR * max(np.abs(w).max(), 1.0))
-    return v / np.sqrt(w)
+    finite = xp.all(xp.isfinite(hess))
+    w, v = xp.linalg.eigh(xp.where(xp.isfinite(hess), hess, 0.0))
+    w = xp.maximum(xp.abs(w), EIGENVALUE_FLOOR * xp.maximum(xp.abs(w).max(), 1.0))
+    return xp.where(finite, v / xp.sqrt(w), xp.eye(hess.shape[0]))
 
 
 def _make_whitened_bfgs():
@@ -167,21 +169,15 @@ def _batched_map(program: Program, rounds: int):
         z_c, precond, data = args
         return program.potential(z_c + precond @ w, data)
 
-    def precondition(hess):
-        hess = 0.5 * (hess + hess.T)
-        w, v = jnp.linalg.eigh(jnp.where(jnp.isfinite(hess), hess, 0.0))
-        w = jnp.maximum(jnp.abs(w), EIGENVALUE_FLOOR * jnp.maximum(jnp.abs(w).max(), 1.0))
-        return jnp.where(jnp.all(jnp.isfinite(hess)), v / jnp.sqrt(w), jnp.eye(hess.shape[0]))
-
     def newton_decrement(z, data):
         hess = program.hessian(z, data)
-        step = precondition(hess).T @ program.value_and_grad(z, data)[1]
+        step = _whitening(hess, jnp).T @ program.value_and_grad(z, data)[1]
         return step @ step, hess
 
     def one(z, data):
         def round_(carry):
             z, steps, k, _ = carry
-            precond = precondition(program.hessian(z, data))
+            precond = _whitening(program.hessian(z, data), jnp)
             sol = optx.minimise(
                 whitened, solver, jnp.zeros_like(z), args=(z, precond, data), max_steps=500, throw=False
             )
