@@ -78,7 +78,7 @@ class InferenceSpec:
     ``retry_target_accept``: a NUTS run with divergent transitions is run
     again (new chains) with this target acceptance, i.e. smaller steps, and
     the retry is recorded in the diagnostics; divergences left after it get one
-    last run at 0.99 when they are at most 1 % of the draws
+    last run at 0.99 when they are at most 2 % of the draws
     (:data:`bayescal.inference.nuts.LAST_RETRY_ACCEPT`); the last run's
     own diagnostics decide the verdict (0 turns retrying off).  On 200 simulated 8-bit,
     2-12 DN datasets, 0.8 left 8 fits with 1-7 divergences; 0.95 left none.  The pooled
