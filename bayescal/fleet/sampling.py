@@ -220,11 +220,11 @@ def _run_chains(
     the bulk.  On a 20-camera fleet this warmup of 150 iterations and 500 draws per chain took
     2.1x fewer gradient evaluations than numpyro's window adaptation (300 iterations, 600 draws,
     fixed starts), both at ESS above 500 (``benchmarks/results/fleet_speed.md``).  Tried and not
-    kept, on the same fleet (seeds 1-8): the Laplace covariance as a dense mass (the same 15
+    kept, on the same fleet: the Laplace covariance as a dense mass (seeds 1-6: the same ~15
     leapfrog steps per transition, lower ESS, every seed continued: 62,000-98,000 gradients
-    against 38,000); warmup of 100 (3 of 8 seeds then needed 1000 draws); 400 draws continued by
-    200 (2 % fewer gradients on average).  Nearly every transition takes 15 steps at the adapted
-    step of 0.32-0.34, so the chains' cost is that of ~2600 transitions of 15 gradients.
+    against 38,000); warmup of 100 (seeds 1-8: 3 then needed 1000 draws); 400 draws continued by
+    200 (seeds 1-8: 2 % fewer gradients on average).  On seeds 1-2, 452-467 of every chain's 500
+    transitions took 15 steps at the adapted step of 0.32-0.34.
 
     With ``inference``: while the sampled scales' bulk or tail ESS (of the scales, as the
     verdict judges them, not their logs) is below its ``min_ess`` or their R-hat above its
