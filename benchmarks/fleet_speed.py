@@ -49,7 +49,7 @@ def _gradient_ms(data, plan, repeats: int = 100, blocks: int = 8) -> dict:
     arrays = {k: jnp.asarray(v) for k, v in data.arrays().items()}
     dim = sum(plan.sampled().values())
     u = jnp.full(dim, np.log(0.5))
-    hyper = _unpack(plan, u, jnp)
+    hyper = _unpack(plan, u, arrays["walk_interval"], jnp)
     sc = block_scales(plan, hyper, jnp)[:, None, :] * arrays["active"]
     kappa = excess_of(plan, hyper, jnp)
 
@@ -109,7 +109,7 @@ def _window_adapted(data, plan, seed: int, chains: int = 4, warmup: int = 300, d
         outs = list(pool.map(lambda c: jax.block_until_ready(run(keys[c], u0[c])), range(chains)))
     seconds = time.perf_counter() - t
     z = np.stack([np.asarray(o[0])[warmup:] for o in outs])
-    conv = _convergence(_unpack(plan, z))
+    conv = _convergence(_unpack(plan, z, arrays["walk_interval"]))
     return {
         "baseline_chains_s": seconds,
         "baseline_gradients": int(sum(np.sum(np.asarray(o[2])) for o in outs)),

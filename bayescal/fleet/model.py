@@ -174,6 +174,7 @@ class FleetData:
     years: np.ndarray  # (U,) years since the origin
     walk_units: np.ndarray  # (n_walk,) units that follow an earlier one of their camera
     walk_dt: np.ndarray  # (n_walk,) years since that earlier unit
+    walk_interval: np.ndarray  # () the mean of walk_dt (1 without steps): NUTS's walk-jitter coordinates
     walk_slot: np.ndarray  # (n_walk,) the step's slot in its camera's block
     unit_slot: np.ndarray  # (U,) the unit's place among its camera's units
     shared_chol: np.ndarray  # (K, M, C, C) factor of each camera's repeating error covariance
@@ -195,7 +196,7 @@ class FleetData:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The traced arguments of the marginal likelihood."""
-        names = ("g_gg", "g_gm", "g_mm", "b_g", "b_m", "prior_var_g", "active", "yy", "n_rows")
+        names = ("g_gg", "g_gm", "g_mm", "b_g", "b_m", "prior_var_g", "active", "yy", "n_rows", "walk_interval")
         return {k: getattr(self, k) for k in names}
 
 
@@ -302,6 +303,7 @@ def fleet_data(fits: UnitFits, fleet_spec: FleetSpec, common_rel: float) -> tupl
         years=years,
         walk_units=walk[0],
         walk_dt=walk[1],
+        walk_interval=np.asarray(np.mean(walk[1]) if len(walk[1]) else 1.0, dtype=float),
         walk_slot=walk[2],
         unit_slot=unit_slot,
         shared_chol=shared_chol,

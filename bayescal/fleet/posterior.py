@@ -458,6 +458,7 @@ class FleetFit:
             years=years,
             walk_units=np.asarray(ds["data_walk_units"], dtype=int),
             walk_dt=np.asarray(ds["data_walk_dt"], dtype=float),
+            walk_interval=np.asarray(np.mean(ds["data_walk_dt"]) if ds["data_walk_dt"].size else 1.0, dtype=float),
             walk_slot=np.asarray(ds["data_walk_slot"], dtype=int),
             unit_slot=np.asarray(ds["data_unit_slot"], dtype=int),
             shared_chol=empty,

@@ -202,11 +202,13 @@ def test_marginal_gradient_matches_the_dense_gaussian(small_fleet, float64):
     arrays = {k: jnp.asarray(v) for k, v in data.arrays().items()}
     dim = sum(plan.sampled().values())
     u0 = np.log(0.6) + 0.4 * rng.standard_normal(dim)
-    grad = np.asarray(jax.grad(lambda u: log_marginal(plan, _unpack(plan, u, jnp), arrays))(jnp.asarray(u0)))
+    d = data.walk_interval
+    grad = np.asarray(jax.grad(lambda u: log_marginal(plan, _unpack(plan, u, d, jnp), arrays))(jnp.asarray(u0)))
     h = 1e-5
     fd = np.array(
         [
-            (_dense(plan, data, _unpack(plan, u0 + h * e)) - _dense(plan, data, _unpack(plan, u0 - h * e))) / (2 * h)
+            (_dense(plan, data, _unpack(plan, u0 + h * e, d)) - _dense(plan, data, _unpack(plan, u0 - h * e, d)))
+            / (2 * h)
             for e in np.eye(dim)
         ]
     )
@@ -220,6 +222,48 @@ def test_marginal_gradient_matches_the_dense_gaussian(small_fleet, float64):
     autodiff = jax.tree_util.tree_leaves(jax.grad(lambda s, a: integrated_value(s, a)[0], argnums=(0, 1))(sc, eff))
     for a, b in zip(closed, autodiff, strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-8, atol=1e-10 * float(jnp.max(jnp.abs(b))))
+
+
+def test_walk_and_jitter_are_sampled_as_their_total_and_ratio(small_fleet, float64):
+    """Where a kind has a random walk and a campaign jitter, NUTS samples the log of their total
+    sd over the mean campaign interval and their log ratio: the map back to the two scales'
+    logs, its unit Jacobian (so the potential is the posterior of those logs, unchanged), and
+    the potential against the prior and marginal written in the scales' own logs."""
+    import jax
+    import jax.numpy as jnp
+    from jax.scipy.stats import norm
+
+    from bayescal.fleet.sampling import _log_scales, _potential, scale_priors
+
+    fleet = fleet_from_frame(_frame(small_fleet), source="small")
+    rng = np.random.default_rng(5)
+    data, plan = fleet_data(_Fits(fleet, 3, rng), FleetSpec(), 0.03)
+    d = float(data.walk_interval)
+    assert plan.walk and plan.jitter and d > 0.5  # campaigns about a year apart
+    sizes = plan.sampled()
+    dim = sum(sizes.values())
+    names = [n for n, k in sizes.items() for _ in range(k)]
+    walk_at, jitter_at = names.index("walk_sd"), names.index("jitter_sd")
+    u = np.log(0.6) + 0.8 * rng.standard_normal(dim)
+    logs = _log_scales(plan, u, d)
+    walk, jitter = np.exp(logs["walk_sd"]), np.exp(logs["jitter_sd"])
+    s, q = u[walk_at : walk_at + 2], u[jitter_at : jitter_at + 2]
+    np.testing.assert_allclose(0.5 * np.log(walk**2 * d + jitter**2), s, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(np.log(walk * np.sqrt(d) / jitter), q, rtol=1e-12, atol=1e-12)
+
+    def flat(v):
+        out = _log_scales(plan, v, d, jnp)
+        return jnp.concatenate([out[n] for n in sizes])
+
+    jac = np.asarray(jax.jacfwd(flat)(jnp.asarray(u)))
+    assert abs(np.linalg.det(jac)) == pytest.approx(1.0, rel=1e-10)
+
+    arrays = {k: jnp.asarray(v) for k, v in data.arrays().items()}
+    priors = scale_priors(plan)
+    hyper = {n: 1.0 + np.exp(v) if n == "excess" else np.exp(v) for n, v in logs.items()}
+    direct = sum(float(np.sum(norm.logpdf(np.exp(v), 0.0, priors[n]) + v)) for n, v in logs.items())
+    direct += float(log_marginal(plan, {n: jnp.asarray(v) for n, v in hyper.items()}, arrays))
+    assert -float(_potential(plan)(jnp.asarray(u), arrays)) == pytest.approx(direct, rel=1e-12, abs=1e-9)
 
 
 def test_leave_one_unit_out_matches_the_dense_gaussian_conditional(small_fleet, float64):
