@@ -48,13 +48,24 @@ def _interrupted(*_) -> None:
     to finish with status 0); chains still running in worker threads cannot be
     stopped from Python, so the process does not wait for them.
     """
-    from bayescal.io.files import discard_staging
+    from bayescal.io.outputs import committed, discard_staging
 
     discard_staging()
-    print("\nbayescal: interrupted; no output was written or replaced", file=sys.stderr)
+    print(f"\nbayescal: {_interrupt_message(committed())}", file=sys.stderr)
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(130)
+
+
+def _interrupt_message(done) -> str:
+    """What an interrupt left: the outputs put in place before it came, or none."""
+    if not done:
+        return "interrupted; no output was written or replaced (an earlier output there is as it was)"
+    where = ", ".join(f"{p}/" for p in done)
+    return (
+        f"interrupted after the output was put in place, whole: {where} (it replaced any earlier output "
+        "there); what the command does after writing (a report, the printed summary) may be missing"
+    )
 
 
 def _catch_interrupts():

@@ -8,10 +8,10 @@ from pathlib import Path
 
 def cmd_fit(args) -> int:
     from bayescal import load_spec
-    from bayescal.io.files import check_output_dir
+    from bayescal.io.outputs import check_output_dir
     from bayescal.model import kinds
 
-    check_output_dir(args.out)
+    check_output_dir(args.out, "fit")
     spec = load_spec(args.model)
     table = kinds.load_table(spec, args.data)  # the table of the spec's kind (a camera's, a film's)
     return run_fit(table, spec, args.backend, args.seed, Path(args.out), args.quiet, report=args.report)
@@ -52,12 +52,12 @@ def run_fit(
 
 def cmd_demo(args) -> int:
     from bayescal import load_design, load_spec, simulate
-    from bayescal.io.files import check_output_dir
+    from bayescal.io.outputs import check_output_dir
     from bayescal.io.resources import models_dir
 
     design = load_design(models_dir() / "seed000_design.toml")
     spec = load_spec(design.spec)
-    out = check_output_dir(args.out)
+    out = check_output_dir(args.out, "fit")
     sim = simulate(spec, design, seed=args.seed)
     print(f"Simulated the seed 000 Bayer CCD: {len(sim.table)} rows, sphere scale error {sim.sphere_scale - 1:+.2%}")
     print(
@@ -140,14 +140,10 @@ def cmd_report(args) -> int:
     from bayescal.report.html import write_report
 
     fit_dir = Path(args.fit_dir)
-    if not (fit_dir / "summary.json").exists():
-        from bayescal.errors import SpecError
+    if not fit_dir.is_dir():
+        from bayescal.errors import PosteriorError
 
-        raise SpecError(f"{fit_dir} has no summary.json; expected a directory written by `bayescal fit`")
-    if not (fit_dir / "posterior.nc").exists():
-        from bayescal.errors import SpecError
-
-        raise SpecError(f"{fit_dir} holds a least-squares fit (no posterior.nc); a report needs a Bayesian backend")
+        raise PosteriorError(f"{fit_dir} is not a folder; expected a folder written by `bayescal fit`")
     from bayescal.cli.progress import stage_reporter
 
     stage_reporter()("drawing the report's figures and tables")

@@ -9,9 +9,10 @@ def cmd_characterize(args) -> int:
     from bayescal.characterization.emva1288 import characterize, plot_curves
     from bayescal.cli.progress import stage_reporter
     from bayescal.io.emva import load_steps
-    from bayescal.io.files import check_output_dir, staged_directory, write_json_atomic
+    from bayescal.io.files import write_json_atomic
+    from bayescal.io.outputs import check_output_dir, staged_directory
 
-    out = check_output_dir(args.out)
+    out = check_output_dir(args.out, "characterization")
     stage = stage_reporter()
     stage(f"reading {args.input} (image pairs and stacks are reduced streaming)")
     steps = load_steps(args.input)

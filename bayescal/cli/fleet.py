@@ -9,10 +9,11 @@ from pathlib import Path
 def cmd_fleet(args) -> int:
     from bayescal.cli.progress import progress_bar, stage_reporter
     from bayescal.fleet import compare_pooling, fit_fleet, load_fleet_table
-    from bayescal.io.files import check_output_dir, write_text_atomic
+    from bayescal.io.files import write_text_atomic
+    from bayescal.io.outputs import check_output_dir
     from bayescal.model.spec import load_spec
 
-    check_output_dir(args.out)
+    check_output_dir(args.out, "fleet")
     spec = load_spec(args.model)
     if args.pooling:
         spec = spec.replace(fleet={"pooling": args.pooling})
@@ -38,7 +39,7 @@ def cmd_fleet(args) -> int:
     print(result.hyperparameters().to_string(index=False, float_format=lambda v: f"{v:.4g}"))
     for warning in result.warnings:
         print(f"bayescal: warning: {warning}", file=sys.stderr)
-    print(f"wrote {args.out}/: fleet.nc, summary.csv, hyperparameters.csv, units.csv, summary.json, cameras/")
+    print(f"wrote {Path(args.out)}/: fleet.nc, summary.csv, hyperparameters.csv, units.csv, summary.json, cameras/")
     if not result.ok:
         print("bayescal: FLEET FIT FAILED: " + "; ".join(result.problems), file=sys.stderr)
         return 3
@@ -48,11 +49,22 @@ def cmd_fleet(args) -> int:
 def cmd_fleet_query(args) -> int:
     import numpy as np
 
+    from bayescal.errors import SpecError
     from bayescal.fleet import FleetFit
     from bayescal.fleet.export import write_calibration
 
-    fleet = FleetFit.load(args.fleet)
     camera = None if args.new_camera else args.camera
+    if args.drift_percent is not None and (camera is None or args.date is None):
+        raise SpecError(
+            "--drift-percent needs --camera and --date (the drift of a measured camera since its last campaign)"
+        )
+    fleet = FleetFit.load(args.fleet)
+    if camera is not None:
+        fleet.camera_index(camera)
+    if args.date is not None:
+        warning = fleet.check_date(args.date, camera, after_last=args.drift_percent is not None)
+        if warning:
+            print(f"bayescal: warning: {warning}", file=sys.stderr)
     values = fleet.at(camera, args.date, seed=args.seed)
     label = camera or "a new camera of the type"
     print(f"{label} at {args.date or 'its last campaign'}:")
@@ -63,10 +75,6 @@ def cmd_fleet_query(args) -> int:
             name = "gain A1" if kind == "log_gain" else ("offset A0" if kind == "offset" else kind)
             print(f"  {ch} {name}: {med:.6g} [{lo:.6g}, {hi:.6g}]")
     if args.drift_percent is not None:
-        if camera is None or args.date is None:
-            from bayescal.errors import SpecError
-
-            raise SpecError("--drift-percent needs --camera and --date")
         p = fleet.drift_probability(camera, args.date, args.drift_percent, seed=args.seed)
         print(f"P(gain drifted by more than {args.drift_percent:g} % by {args.date}) = {p:.3f}")
         when = fleet.recalibration_date(camera, args.drift_percent, args.probability)
@@ -82,32 +90,18 @@ def cmd_fleet_query(args) -> int:
 
 
 def cmd_fleet_simulate(args) -> int:
-    import dataclasses
     import tomllib
 
     from bayescal.errors import SpecError
     from bayescal.io.files import read_text, write_text_atomic
-    from bayescal.validation.fleet import FleetDesign, simulate_fleet
+    from bayescal.validation.fleet import design_from_dict, simulate_fleet
 
     text = read_text(args.design, SpecError, "fleet design (TOML)")
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{args.design} is not valid TOML: {exc}") from None
-    fields = {f.name: f for f in dataclasses.fields(FleetDesign) if f.name != "camera"}
-    for key, value in raw.items():
-        if key not in fields:
-            raise SpecError(f"{args.design}: unknown key '{key}'; expected one of {', '.join(fields)}")
-        if key == "absent":
-            raw[key] = tuple(tuple(v) for v in value)
-        elif isinstance(value, list):
-            raw[key] = tuple(value)
-    try:
-        design = FleetDesign(**raw)
-    except TypeError as exc:
-        raise SpecError(f"{args.design}: {exc}") from None
-    if design.n_cameras < 2:
-        raise SpecError(f"{args.design}: n_cameras = {design.n_cameras}; a fleet needs at least 2")
+    design = design_from_dict(raw, str(args.design))
     table, truth = simulate_fleet(design, seed=args.seed)
     write_text_atomic(args.out, table.to_csv(index=False, float_format="%.10g"))
     if args.truth:

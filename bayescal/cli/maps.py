@@ -8,10 +8,10 @@ from pathlib import Path
 
 def cmd_maps(args) -> int:
     from bayescal.cli.progress import stage_reporter
-    from bayescal.io.files import check_output_dir
+    from bayescal.io.outputs import check_output_dir
     from bayescal.maps.stacks import load_manifest
 
-    check_output_dir(args.out)
+    check_output_dir(args.out, "maps")
     stage = stage_reporter(args.quiet)
     with _stack_directory(args, stage) as (directory, source):
         return _maps(args, stage, load_manifest(directory, source=source))
@@ -26,7 +26,7 @@ def _stack_directory(args, stage):
     """
     from bayescal.cli.progress import progress_bar
     from bayescal.errors import TableError
-    from bayescal.io.files import scratch_directory
+    from bayescal.io.outputs import scratch_directory
     from bayescal.maps.stacks import write_emva_stacks
 
     path = Path(args.stacks)

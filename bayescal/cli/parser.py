@@ -37,7 +37,7 @@ def build() -> argparse.ArgumentParser:
         help="inference backend (default nuts)",
     )
     f.add_argument("--out", required=True, help="output directory")
-    f.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    f.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     f.add_argument("--quiet", action="store_true", help="no progress bar")
     f.add_argument("--report", action="store_true", help="also write OUT/report.html (+ .json, .md)")
     f.set_defaults(func=cmd_fit)
@@ -46,9 +46,9 @@ def build() -> argparse.ArgumentParser:
     setting_args(pr, required=True)
     pr.add_argument("--radiance", "--stimulus", dest="stimulus", type=floats, help="stimulus values (comma list)")
     pr.add_argument("--channel", action="append", help="channel(s) (default all)")
-    pr.add_argument("--n-avg", type=finite, default=1.0, help="pixels x frames averaged per reading (default 1)")
+    pr.add_argument("--n-avg", type=positive, default=1.0, help="pixels x frames averaged per reading (default 1)")
     pr.add_argument("--out", help="also write the table as CSV")
-    pr.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    pr.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     pr.set_defaults(func=cmd_predict)
     iv = sub.add_parser("invert", help="radiance posterior of DN values or an image (median and 95 %% interval)")
     iv.add_argument("posterior", help="fit directory or its posterior.nc")
@@ -61,7 +61,7 @@ def build() -> argparse.ArgumentParser:
         "--maps",
         help="per-pixel maps directory (from `bayescal maps`): correct every pixel before inverting",
     )
-    iv.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    iv.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     iv.set_defaults(func=cmd_invert)
     mp = sub.add_parser(
         "maps", help="per-pixel relative gain, offset, dark current and defect maps from flat and dark frame stacks"
@@ -79,10 +79,13 @@ def build() -> argparse.ArgumentParser:
     )
     mp.add_argument("--channel", default="M", help="channel name of a monochrome sensor (default M)")
     mp.add_argument(
-        "--fit-pixels", type=int, default=262_144, help="pixels used to fit the population (default 262144)"
+        "--fit-pixels", type=positive_int, default=262_144, help="pixels used to fit the population (default 262144)"
     )
     mp.add_argument(
-        "--rows-per-chunk", type=int, default=None, help="rows per block and store chunk (default: ~2^20 pixels)"
+        "--rows-per-chunk",
+        type=positive_int,
+        default=None,
+        help="rows per block and store chunk (default: ~2^20 pixels)",
     )
     mp.add_argument(
         "--scheduler", help="address of a dask.distributed scheduler (e.g. tcp://host:8786); default: this machine"
@@ -93,26 +96,26 @@ def build() -> argparse.ArgumentParser:
     pl = sub.add_parser("plan", help="choose gain/exposure/TDI so the next frame lands in a DN window")
     pl.add_argument("posterior", help="fit directory or its posterior.nc")
     pl.add_argument("--channel", required=True, help="channel the reading (or the scene) is of")
-    pl.add_argument("--dn", type=finite, help="reading at the current setting")
+    pl.add_argument("--dn", type=non_negative, help="reading at the current setting")
     pl.add_argument("--current", type=setting_values, help="current setting: EXPOSURE_S[,GAIN[,TDI[,TEMPERATURE_C]]]")
-    pl.add_argument("--radiance", "--stimulus", dest="stimulus", type=finite, help="known scene stimulus instead")
-    pl.add_argument("--exposures", type=floats, required=True, help="allowed exposures, s (comma list)")
-    pl.add_argument("--gains", type=floats, default=[1.0], help="allowed gains (comma list)")
-    pl.add_argument("--tdi-stages", type=floats, default=[1.0], help="allowed TDI stages (comma list)")
-    pl.add_argument("--window", type=floats, help="target DN window LOW,HIGH (default 1080,1920 scaled to bits)")
-    pl.add_argument("--n-avg", type=finite, default=1.0, help="pixels x frames averaged per reading (default 1)")
-    pl.add_argument("--top", type=int, default=5, help="rows to print")
-    pl.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    pl.add_argument("--radiance", "--stimulus", dest="stimulus", type=positive, help="known scene stimulus instead")
+    pl.add_argument("--exposures", type=positives, required=True, help="allowed exposures, s (comma list)")
+    pl.add_argument("--gains", type=positives, default=[1.0], help="allowed gains (comma list)")
+    pl.add_argument("--tdi-stages", type=positives, default=[1.0], help="allowed TDI stages (comma list)")
+    pl.add_argument("--window", type=window, help="target DN window LOW,HIGH (default 1080,1920 scaled to bits)")
+    pl.add_argument("--n-avg", type=positive, default=1.0, help="pixels x frames averaged per reading (default 1)")
+    pl.add_argument("--top", type=positive_int, default=5, help="rows to print")
+    pl.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     pl.set_defaults(func=cmd_plan)
     rp = sub.add_parser("report", help="HTML report (figures embedded) + report.json + report.md of a fit")
     rp.add_argument("fit_dir", help="directory written by `bayescal fit`")
     rp.add_argument("--out", help="HTML path (default FIT_DIR/report.html); .json and .md go beside it")
-    rp.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    rp.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     rp.set_defaults(func=cmd_report)
     ch = sub.add_parser("characterize", help="EMVA 1288: standard estimates beside posteriors (K, R, QE, dark, ...)")
     ch.add_argument("input", help="EMVA 1288 descriptor (.txt) with its images, crop128.npz, or a reduced steps.csv")
     ch.add_argument("--out", required=True, help="output directory")
-    ch.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    ch.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     ch.set_defaults(func=cmd_characterize)
     se = sub.add_parser(
         "select",
@@ -124,7 +127,7 @@ def build() -> argparse.ArgumentParser:
     se.add_argument("--orders", type=orders, default=[1, 2, 3], help="response orders 1-4 to compare (default 1,2,3)")
     se.add_argument("--without", default="", help="components to try switching off: level_errors,excess,exposure_slope")
     se.add_argument("--backend", default="laplace", choices=backends.names(), help="backend (default laplace)")
-    se.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    se.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     se.add_argument(
         "--pooling",
         action="store_true",
@@ -137,23 +140,23 @@ def build() -> argparse.ArgumentParser:
     setting_args(sc, required=False)
     image_args(sc, channel_help="channel of a single-channel image")
     sc.add_argument("--full", help="the reference candidate (default: the highest response order)")
-    sc.add_argument("--tol", type=finite, default=0.1, help="allowed deviation in posterior sds (default 0.1)")
+    sc.add_argument("--tol", type=positive, default=0.1, help="allowed deviation in posterior sds (default 0.1)")
     sc.add_argument("--out", help="write the comparison as JSON here")
-    sc.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    sc.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     sc.set_defaults(func=cmd_scene)
     sb = sub.add_parser("sbc", help="simulation-based calibration of a model over a table's design (rank tests)")
     sb.add_argument("data", help="CSV or Parquet table: its design (settings, levels) is used, not its readings")
     sb.add_argument("--model", required=True, help="model spec (TOML); its priors generate the datasets")
-    sb.add_argument("--sims", type=int, default=200, help="simulated datasets (default 200)")
+    sb.add_argument("--sims", type=positive_int, default=200, help="simulated datasets (default 200)")
     sb.add_argument("--backend", default="nuts", choices=backends.names(), help="backend of the refits (default nuts)")
     sb.add_argument("--out", required=True, help="output stem: writes STEM.csv, STEM.md, STEM.png")
-    sb.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    sb.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     sb.set_defaults(func=cmd_sbc)
     s = sub.add_parser("simulate", help="simulate a measurement table from a design with a [truth] table")
     s.add_argument("--design", required=True, help="design TOML (names its spec, holds [truth])")
     s.add_argument("--model", help="model spec (default: the design's)")
     s.add_argument("--out", required=True, help="CSV to write")
-    s.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    s.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     s.set_defaults(func=cmd_simulate)
     fl = sub.add_parser("fleet", help="calibrate a fleet of cameras over campaigns: each alone, then the hierarchy")
     fl.add_argument(
@@ -169,7 +172,7 @@ def build() -> argparse.ArgumentParser:
         "--compare-pooling", action="store_true", help="also compare no/partial/complete pooling by PSIS-LOO"
     )
     fl.add_argument("--report", action="store_true", help="also write OUT/fleet_report.html")
-    fl.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    fl.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     fl.add_argument("--quiet", action="store_true", help="no progress bar")
     fl.set_defaults(func=cmd_fleet)
     fq = sub.add_parser("fleet-query", help="a fleet camera at a date, its drift probability, its calibration")
@@ -177,21 +180,25 @@ def build() -> argparse.ArgumentParser:
     who = fq.add_mutually_exclusive_group(required=True)
     who.add_argument("--camera", help="camera name (as in the table's camera column)")
     who.add_argument("--new-camera", action="store_true", help="a camera of the type never measured")
-    fq.add_argument("--date", help="ISO date (default: the camera's last campaign)")
-    fq.add_argument("--drift-percent", type=finite, help="P(|gain change since the last campaign| > this %%) at --date")
-    fq.add_argument("--probability", type=finite, default=0.05, help="risk for the recalibration date (default 0.05)")
+    fq.add_argument("--date", type=iso_date, help="ISO date (default: the camera's last campaign)")
+    fq.add_argument(
+        "--drift-percent", type=positive, help="P(|gain change since the last campaign| > this %%) at --date"
+    )
+    fq.add_argument(
+        "--probability", type=probability, default=0.05, help="risk for the recalibration date (default 0.05)"
+    )
     fq.add_argument("--calibration", help="write this fit directory (for predict, invert, plan)")
-    fq.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    fq.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     fq.set_defaults(func=cmd_fleet_query)
     fs = sub.add_parser("fleet-simulate", help="simulate a fleet's campaigns (independent simulator) from a design")
     fs.add_argument("design", help="fleet design TOML, e.g. models/fleet_seed000_design.toml")
     fs.add_argument("--out", required=True, help="measurement table CSV to write")
     fs.add_argument("--truth", help="also write the true coefficients per unit to this CSV")
-    fs.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    fs.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     fs.set_defaults(func=cmd_fleet_simulate)
     d = sub.add_parser("demo", help="simulate the seed 000 camera, fit it, compare with least squares")
     d.add_argument("--out", default="demo-out", help="output directory (default demo-out)")
-    d.add_argument("--seed", type=int, default=0, help=SEED_HELP)
+    d.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     d.add_argument("--backend", default="nuts", choices=backends.names(), help="backend (default nuts)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=cmd_demo)
@@ -206,6 +213,49 @@ def finite(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
     return value
+
+
+def _checked(check):
+    """An argument type from a check of :mod:`bayescal.io.checks` (its message becomes argparse's)."""
+
+    def convert(text: str):
+        from bayescal.errors import SpecError
+
+        try:
+            return check(text)
+        except SpecError as exc:
+            raise argparse.ArgumentTypeError(str(exc).replace("value = ", "", 1)) from None
+
+    convert.__name__ = check.__name__
+    return convert
+
+
+def _checks():
+    from bayescal.io import checks
+
+    return checks
+
+
+positive = _checked(lambda t: _checks().number(t, "value", positive=True))
+non_negative = _checked(lambda t: _checks().number(t, "value", minimum=0.0))
+positive_int = _checked(lambda t: _checks().count(t, "value"))
+seed = _checked(lambda t: _checks().count(t, "value", minimum=0))
+probability = _checked(lambda t: _checks().probability(t, "value"))
+iso_date = _checked(lambda t: _checks().date(t, "value").date().isoformat())
+
+
+def positives(text: str) -> list[float]:
+    values = floats(text)
+    if any(v <= 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers above 0, got '{text}'")
+    return values
+
+
+def window(text: str) -> list[float]:
+    values = floats(text)
+    if len(values) != 2 or not 0 <= values[0] < values[1]:
+        raise argparse.ArgumentTypeError(f"expected LOW,HIGH with 0 <= LOW < HIGH (DN), got '{text}'")
+    return values
 
 
 def setting_values(text: str) -> list[float]:
@@ -238,9 +288,9 @@ def floats(text: str) -> list[float]:
 
 
 def setting_args(p: argparse.ArgumentParser, required: bool) -> None:
-    p.add_argument("--exposure-s", type=finite, required=required, help="exposure time, s")
-    p.add_argument("--gain", type=finite, default=None, help="gain factor (default the reference gain)")
-    p.add_argument("--tdi-stages", type=finite, default=None, help="TDI stages (default the reference)")
+    p.add_argument("--exposure-s", type=positive, required=required, help="exposure time, s")
+    p.add_argument("--gain", type=positive, default=None, help="gain factor (default the reference gain)")
+    p.add_argument("--tdi-stages", type=positive, default=None, help="TDI stages (default the reference)")
     p.add_argument("--temperature-c", type=finite, default=None, help="sensor temperature, degC (default reference)")
 
 
@@ -249,4 +299,4 @@ def image_args(p, channel_help: str) -> None:
     p.add_argument("--cfa", help="Bayer pattern of a raw mosaic: RGGB, BGGR, GRBG, GBRG")
     p.add_argument("--channel", help=channel_help)
     p.add_argument("--channels", help="comma list naming the planes of an (H, W, C) image")
-    p.add_argument("--n-avg", type=finite, default=1.0, help="pixels x frames averaged per value (default 1)")
+    p.add_argument("--n-avg", type=positive, default=1.0, help="pixels x frames averaged per value (default 1)")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 
 def setting_of(args, cal):
@@ -49,20 +50,29 @@ def cmd_invert(args) -> int:
     import numpy as np
 
     from bayescal.errors import SpecError
-    from bayescal.io.files import check_output_dir, write_text_atomic
+    from bayescal.io.files import write_text_atomic
+    from bayescal.io.outputs import check_output_dir
     from bayescal.posterior.calibration import Calibration
     from bayescal.prediction.images import invert_image, read_image, write_radiance_maps
     from bayescal.prediction.invert import invert
 
+    if args.maps is None and (args.image is None) == (args.dn is None):
+        raise SpecError("give an IMAGE or --dn values (one of them)")
+    if args.dn is not None and not args.channel:
+        raise SpecError("--dn needs --channel")
+    if args.image is not None and not args.out:
+        raise SpecError("inverting an image needs --out DIR")
+    image = read_image(args.image) if args.image is not None else None  # checked before the posterior is read
     cal = Calibration.load(args.posterior)
+    if image is not None:
+        from bayescal.io import checks
+
+        if getattr(cal, "full_scale", None):
+            checks.within_bits(image, cal.full_scale, str(args.image))
     setting = setting_of(args, cal)
     if args.maps is not None:
-        return _invert_with_maps(args, cal, setting)
-    if (args.image is None) == (args.dn is None):
-        raise SpecError("give an IMAGE or --dn values (one of them)")
+        return _invert_with_maps(args, cal, setting, image)
     if args.dn is not None:
-        if not args.channel:
-            raise SpecError("--dn needs --channel")
         res = invert(cal, np.asarray(args.dn), args.channel, setting, n_avg=args.n_avg, seed=args.seed)
         table = res.to_frame()
         print(res.describe(cal.stimulus) + ":")
@@ -70,12 +80,9 @@ def cmd_invert(args) -> int:
         if args.out:
             write_text_atomic(args.out, table.to_csv(index=False, float_format="%.10g"))
         return 0
-    if not args.out:
-        raise SpecError("inverting an image needs --out DIR")
-    check_output_dir(args.out)
+    check_output_dir(args.out, "radiance")
     from bayescal.cli.progress import progress_bar
 
-    image = read_image(args.image)
     channels = args.channels.split(",") if args.channels else None
     with progress_bar(1, "inverting", quiet=False):
         ds = invert_image(
@@ -99,23 +106,20 @@ def cmd_invert(args) -> int:
     return 0
 
 
-def _invert_with_maps(args, cal, setting) -> int:
+def _invert_with_maps(args, cal, setting, image) -> int:
     """``invert --maps``: per-pixel correction, then the channel's inversion, with every uncertainty."""
     import numpy as np
 
     from bayescal.errors import SpecError
-    from bayescal.io.files import check_output_dir, staged_directory
+    from bayescal.io.outputs import check_output_dir, staged_directory
     from bayescal.maps.apply import apply_maps
     from bayescal.maps.store import read_maps
-    from bayescal.prediction.images import read_image
-
     if args.image is None or not args.out:
         raise SpecError("--maps corrects an IMAGE: give the image and --out DIR")
     if args.exposure_s is None:
         raise SpecError("--maps needs the image's --exposure-s (the dark current scales with it)")
-    check_output_dir(args.out)
+    check_output_dir(args.out, "radiance")
     maps = read_maps(args.maps)
-    image = read_image(args.image)
     if image.ndim != 2:
         raise SpecError(f"{args.image}: --maps corrects a 2-D single-channel image; got shape {image.shape}")
     ds = apply_maps(
@@ -137,7 +141,7 @@ def _invert_with_maps(args, cal, setting) -> int:
         f"{ds.attrs['n_defective']} defective pixels masked; median relative interval half-width "
         f"{np.nanmedian((ds['upper'] - ds['lower']).to_numpy()[finite] / 2 / ds['median'].to_numpy()[finite]):.2%}"
     )
-    print(f"wrote {args.out}/radiance.nc")
+    print(f"wrote {Path(args.out) / 'radiance.nc'}")
     return 0
 
 

@@ -31,7 +31,8 @@ from bayescal.inference import registry as backends
 from bayescal.inference.diagnostics import Diagnostics
 from bayescal.inference.laplace import laplace
 from bayescal.inference.program import program_of
-from bayescal.io.files import staged_directory, write_json_atomic
+from bayescal.io.files import write_json_atomic
+from bayescal.io.outputs import staged_directory
 
 __all__ = ["BandFit", "FilmFit", "fit_film", "fit_film_table", "REPORTED"]
 

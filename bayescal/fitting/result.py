@@ -27,7 +27,8 @@ from bayescal.fitting.holdout import holdout_checks
 from bayescal.fitting.misfit import MisfitThresholds, misfit_checks
 from bayescal.inference import registry as backends
 from bayescal.inference.diagnostics import Diagnostics
-from bayescal.io.files import staged_directory, write_json_atomic
+from bayescal.io.files import write_json_atomic
+from bayescal.io.outputs import staged_directory
 from bayescal.io.table import MeasurementTable
 from bayescal.model.assemble import CalibrationModel
 from bayescal.model.components import reported_dims, site_dims

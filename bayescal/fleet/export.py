@@ -46,11 +46,12 @@ def write_calibration(
     """
     import arviz as az
 
-    from bayescal.io.files import check_output_dir, staged_directory, write_json_atomic
+    from bayescal.io.files import write_json_atomic
+    from bayescal.io.outputs import check_output_dir, staged_directory
 
     fleet_dir = Path(fleet_dir)
     fleet = FleetFit.load(fleet_dir)
-    check_output_dir(out_dir)
+    check_output_dir(out_dir, "fit")
     source = template or camera or fleet.cameras[0]
     fleet.camera_index(source)
     path = fleet_dir / "cameras" / safe_name(source) / "posterior.nc"

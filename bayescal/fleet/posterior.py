@@ -153,6 +153,48 @@ class FleetFit:
             return 0.0
         return float((pd.Timestamp(date) - self.origin).total_seconds() / 86400.0 / DAYS_PER_YEAR)
 
+    #: how far outside its campaigns the fleet answers, in years, at least (see :meth:`check_date`)
+    MIN_REACH_YEARS = 5.0
+
+    def check_date(self, date, camera: str | None = None, after_last: bool = False) -> str | None:
+        """Check a date a question is asked at; returns an extrapolation warning, or None inside the campaigns.
+
+        Dates further outside the campaigns than :attr:`MIN_REACH_YEARS` or twice their span,
+        whichever is longer, are refused (:class:`~bayescal.errors.SpecError`): the drift there is
+        the trend alone, extrapolated beyond anything the campaigns show.  With ``after_last``
+        (a drift since ``camera``'s last campaign) the date must come after that campaign.
+        """
+        from bayescal.io import checks
+
+        when = checks.date(date, "date")
+        if self.origin is None:
+            return None
+        t = self.years(when)
+        first, last = float(np.min(self.data.years)), float(np.max(self.data.years))
+        reach = max(self.MIN_REACH_YEARS, 2.0 * (last - first))
+
+        def day(years: float) -> str:
+            return (self.origin + pd.Timedelta(days=years * DAYS_PER_YEAR)).date().isoformat()
+
+        if after_last and camera is not None:
+            own = float(np.max(self.data.years[self.data.camera == self.camera_index(camera)]))
+            if t <= own + 1e-9:
+                raise SpecError(
+                    f"date {when.date()} is not after camera '{camera}''s last campaign ({day(own)}); the drift "
+                    "probability is of the change since that campaign: give a later date"
+                )
+        if t < first - reach or t > last + reach:
+            raise SpecError(
+                f"date {when.date()} is {max(first - t, t - last):.1f} years outside the campaigns "
+                f"({day(first)} to {day(last)}); the fleet answers up to {reach:g} years beyond them"
+            )
+        if t < first or t > last:
+            return (
+                f"EXTRAPOLATION: {when.date()} is {max(first - t, t - last):.2f} years outside the campaigns "
+                f"({day(first)} to {day(last)}): the drift there is extrapolated from them"
+            )
+        return None
+
     def camera_index(self, camera: str) -> int:
         if camera not in self.cameras:
             raise SpecError(f"camera '{camera}' is not in this fleet; its cameras are {', '.join(self.cameras)}")
@@ -164,6 +206,8 @@ class FleetFit:
         ``camera=None``: a camera of the type that was never measured (population predictive).
         Between and after campaigns the random walk adds ``walk_sd^2 |t - t_nearest|``.
         """
+        if date is not None:
+            self.check_date(date, camera)
         rng = np.random.default_rng(np.random.SeedSequence([seed, 0xF1EE7]))
         level = self._level(camera, rng)  # (S, K, C)
         if not self.plan.drift:
@@ -260,6 +304,8 @@ class FleetFit:
         """``P(|gain(date) / gain(since) - 1| > percent / 100)`` (``since``: the last campaign)."""
         if percent <= 0:
             raise SpecError(f"drift threshold {percent} %: expected a positive percentage")
+        if since is None:
+            self.check_date(date, camera, after_last=True)
         return float(np.mean(np.abs(self.gain_drift(camera, date, since, seed)) > percent / 100.0))
 
     def recalibration_date(self, camera: str, percent: float, probability: float = 0.05, horizon_years: float = 10.0):
@@ -372,7 +418,8 @@ class FleetFit:
         """Write the fleet directory (replacing ``out_dir`` whole): ``fleet.nc`` (draws and the
         stage-one summaries), ``summary.csv``, ``hyperparameters.csv``, ``units.csv``,
         ``summary.json``, and each camera's latest stage-one fit under ``cameras/``."""
-        from bayescal.io.files import staged_directory, write_json_atomic
+        from bayescal.io.files import write_json_atomic
+        from bayescal.io.outputs import staged_directory
 
         with staged_directory(out_dir, kind="fleet") as stage:
             self._dataset().to_netcdf(stage(FLEET_FILE), engine="h5netcdf")
@@ -429,10 +476,13 @@ class FleetFit:
 
         import xarray as xr
 
+        from bayescal.io.outputs import verify_output
+
         path = Path(path)
         file = path / FLEET_FILE if path.is_dir() else path
         if not file.is_file():
             raise PosteriorError(f"no fleet posterior at {file}; run `bayescal fleet TABLE --out DIR` first")
+        verify_output(file, ("fleet",), verb="reading a fleet")
         try:
             ds = xr.load_dataset(file, engine="h5netcdf")
             a = ds.attrs

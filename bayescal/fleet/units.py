@@ -164,4 +164,15 @@ def _dates(col: pd.Series, source: str) -> pd.Series:
             row=i + 1,
             column="campaign",
         )
+    today = pd.Timestamp.now().normalize()
+    odd = (parsed > today + pd.Timedelta(days=1)) | (parsed < pd.Timestamp("1950-01-01"))
+    if odd.any():
+        i = int(np.flatnonzero(odd.to_numpy())[0])
+        raise TableError(
+            f"{source}: campaign date {parsed.iloc[i].date().isoformat()} is "
+            + ("in the future" if parsed.iloc[i] > today else "before 1950")
+            + "; expected the date the campaign measured (a typo in the year?)",
+            row=i + 1,
+            column="campaign",
+        )
     return parsed.dt.normalize()

@@ -1,13 +1,12 @@
-"""Atomic file output: a failed run never leaves a half-written file, and an output
-directory is replaced as a whole, so files of two runs are never mixed."""
+"""Reading inputs and writing single files atomically: a failed run never leaves a
+half-written file (output folders: :mod:`bayescal.io.outputs`)."""
 
 from __future__ import annotations
 
 import json
 import os
-import shutil
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,19 +19,8 @@ __all__ = [
     "atomic_path",
     "write_text_atomic",
     "write_json_atomic",
-    "staged_directory",
-    "scratch_directory",
-    "check_output_dir",
     "read_image",
-    "MARKER",
 ]
-
-#: staging directories of outputs being written in this process (removed on an interrupt)
-_STAGING: set[Path] = set()
-#: written into every output directory bayescal makes; a directory with it may be replaced by a later run
-MARKER = ".bayescal-output"
-#: files that identify a directory written by an earlier bayescal version (before the marker)
-_KNOWN = ("summary.json", "characterization.json", "radiance.nc", "film_summary.json")
 
 
 def read_text(path: str | os.PathLike, error: type[Exception], what: str = "file") -> str:
@@ -68,7 +56,13 @@ def read_text(path: str | os.PathLike, error: type[Exception], what: str = "file
 
 @contextmanager
 def atomic_path(target: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``target``; rename it onto ``target`` on success."""
+    """Yield a temporary path beside ``target``; rename it onto ``target`` on success.
+
+    In a bayescal output folder the file joins the run's list of files in the same step
+    (:func:`bayescal.io.outputs.record_file`), and a file of the user's there is refused.
+    """
+    from bayescal.io.outputs import record_file
+
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
@@ -77,7 +71,8 @@ def atomic_path(target: str | os.PathLike) -> Iterator[Path]:
     try:
         yield tmp_path
         os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the usual permissions
-        os.replace(tmp_path, target)
+        if not record_file(tmp_path, target):
+            os.replace(tmp_path, target)
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
@@ -121,100 +116,6 @@ def _jsonable(obj: Any) -> Any:
     return obj
 
 
-def check_output_dir(out_dir: str | os.PathLike) -> Path:
-    """Refuse an output directory before any work is done, unless bayescal may replace it.
-
-    ``out_dir`` may be missing, an empty directory, or a directory that an
-    earlier bayescal run wrote (it holds the :data:`MARKER` file).  Anything
-    else (a file, a directory of someone else's files) raises
-    :class:`~bayescal.errors.OutputError`.
-    """
-    from bayescal.errors import OutputError
-
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise OutputError(f"{out_dir} is a file; expected a directory for the outputs (give another --out)")
-    if out_dir.is_dir():
-        names = {p.name for p in out_dir.iterdir()}
-        if names and MARKER not in names and not names.intersection(_KNOWN):
-            raise OutputError(
-                f"{out_dir} is a non-empty directory that bayescal did not write; refusing to replace it "
-                "(give a new or empty --out directory)"
-            )
-    parent = out_dir.absolute().parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK):
-        raise OutputError(f"cannot create {out_dir}: {parent} is not a writable directory")
-    return out_dir
-
-
-@contextmanager
-def staged_directory(out_dir: str | os.PathLike, kind: str = "output") -> Iterator[Callable[[str], Path]]:
-    """Stage a directory of outputs, then put it in place of ``out_dir`` as a whole, only on success.
-
-    Yields ``stage(name) -> Path``: a path to write ``name`` to (``stage.root``
-    is the staged directory itself, for stores such as zarr).  If the block
-    raises, ``out_dir`` is left exactly as it was; on success it holds only
-    this run's files (an earlier bayescal output there is replaced, never
-    mixed with the new one; see :func:`check_output_dir`).
-    """
-    out_dir = check_output_dir(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.staging.", dir=out_dir.parent))
-    _STAGING.add(staging)
-
-    def stage(name: str) -> Path:
-        path = staging / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        return path
-
-    stage.root = staging
-    try:
-        yield stage
-        from bayescal._version import __version__
-
-        (staging / MARKER).write_text(json.dumps({"kind": kind, "bayescal_version": __version__}) + "\n")
-        os.chmod(staging, 0o777 & ~_umask())
-        old = None
-        if out_dir.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old.", dir=out_dir.parent))
-            os.replace(out_dir, old / "d")
-        os.replace(staging, out_dir)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    finally:
-        _STAGING.discard(staging)
-        if staging.exists():
-            shutil.rmtree(staging, ignore_errors=True)
-
-
-@contextmanager
-def scratch_directory(beside: str | os.PathLike, name: str) -> Iterator[Path]:
-    """A hidden working directory beside ``beside``, removed afterwards, also when the run is interrupted.
-
-    For intermediate files a run needs but does not keep (an image set
-    rewritten as stacks); being beside the output, it is on the same disk,
-    visible to a cluster's workers when that disk is shared.
-    """
-    beside = Path(beside).resolve()
-    beside.parent.mkdir(parents=True, exist_ok=True)
-    scratch = Path(tempfile.mkdtemp(prefix=f".{beside.name}.{name}-", dir=beside.parent))
-    _STAGING.add(scratch)
-    try:
-        yield scratch
-    finally:
-        _STAGING.discard(scratch)
-        shutil.rmtree(scratch, ignore_errors=True)
-
-
-def discard_staging() -> None:
-    """Remove the staging directories of outputs still being written (an interrupted run leaves none)."""
-    for path in list(_STAGING):
-        shutil.rmtree(path, ignore_errors=True)
-        _STAGING.discard(path)
-
-
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read a TIFF, PNG or NPY image as a 2-D (mosaic or mono) or 3-D (H, W, C) array."""
     import numpy as np
@@ -235,9 +136,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
         with Image.open(path) as im:
             img = np.asarray(im)
     elif suffix == ".npy":
-        img = np.load(path, allow_pickle=False)
+        try:
+            img = np.load(path, allow_pickle=False)
+        except ValueError as exc:  # object arrays need pickle, which is never loaded from a user's file
+            raise TableError(f"{path}: not an array of numbers ({exc}); expected DN as integers or floats") from None
     else:
         raise TableError(f"{path}: unsupported image type '{suffix}'; expected .tif, .tiff, .png or .npy")
-    if img.ndim not in (2, 3):
-        raise TableError(f"{path}: expected a 2-D image or an (H, W, C) stack, got shape {img.shape}")
-    return img
+    from bayescal.io import checks
+
+    return checks.image(np.asarray(img), str(path))

@@ -99,6 +99,18 @@ class LazyStack:
                     raise TableError(f"{self.path}: the file ends inside frame {f} (truncated?)")
         if not self.dtype.isnative:  # the file's bytes are in the other order: swap them where they lie
             out.byteswap(inplace=True)
+        if out.dtype.kind == "f" and not np.isfinite(out).all():  # a float stack: NaN or inf breaks every fit
+            f, r, c = (int(i) for i in np.argwhere(~np.isfinite(out))[0])
+            raise TableError(
+                f"{self.path}: frame {f}, row {r0 + r}, column {c} is {out[f, r, c].item()}; expected finite DN "
+                "in every frame (replace or mask the pixel before mapping)"
+            )
+        if out.dtype.kind in "if" and (out < 0).any():  # raw DN are never negative (a signed type's wrap)
+            f, r, c = (int(i) for i in np.argwhere(out < 0)[0])
+            raise TableError(
+                f"{self.path}: frame {f}, row {r0 + r}, column {c} is {out[f, r, c].item()}; expected raw DN >= 0 "
+                "(a dark-subtracted or wrapped signed stack?)"
+            )
         return out
 
 
@@ -109,6 +121,8 @@ def _open_one(path: Path, row: pd.Series, where: str) -> LazyStack:
     try:
         if suffix == ".npy":
             mm = np.load(path, mmap_mode="r")
+            if mm.dtype.kind not in "uif":
+                raise TableError(f"{where}: {path.name} holds {mm.dtype} values; expected DN as integers or floats")
             if mm.ndim not in (2, 3):
                 raise TableError(f"{where}: {path.name} has shape {mm.shape}; expected (frames, height, width)")
             if not mm.flags.c_contiguous:

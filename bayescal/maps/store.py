@@ -20,7 +20,7 @@ import numpy as np
 
 from bayescal._config import numerics
 from bayescal.errors import TableError
-from bayescal.io.files import staged_directory
+from bayescal.io.outputs import staged_directory
 from bayescal.maps.build import lazy_maps
 from bayescal.maps.kernel import block_maps
 from bayescal.maps.model import SensorModel, fit_map_model
@@ -178,7 +178,10 @@ def read_maps(path: str | os.PathLike):
     """Open maps written by :func:`write_maps` (a directory holding ``maps.zarr`` or ``maps.nc``)."""
     import xarray as xr
 
+    from bayescal.io.outputs import verify_output
+
     path = Path(path)
+    verify_output(path, ("maps",), verb="reading maps")
     if (path / "maps.zarr").exists():
         try:
             return xr.open_zarr(str(path / "maps.zarr"), consolidated=False)

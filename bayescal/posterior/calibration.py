@@ -160,11 +160,20 @@ class Calibration:
         """From a fit directory or its ``posterior.nc`` (spec and measurements are stored in it)."""
         import arviz as az
 
+        from bayescal.io.outputs import verify_output
+
         path = Path(path)
         if path.is_dir():
+            if not (path / "posterior.nc").exists() and (path / "summary.json").exists():
+                raise PosteriorError(
+                    f"no posterior at {path / 'posterior.nc'}: {path} holds a least-squares fit; "
+                    "predictions need a Bayesian backend (--backend nuts or laplace)"
+                )
+            verify_output(path, ("fit",), needs=("posterior.nc",), verb="a calibration's reader")
             path = path / "posterior.nc"
         if not path.is_file():
             raise PosteriorError(f"no posterior at {path}; run `bayescal fit ... --out DIR` first")
+        verify_output(path, ("fit",), verb="a calibration's reader")
         try:
             dt = az.from_netcdf(path)
         except Exception as exc:  # h5py/xarray raise many types for truncated or foreign files

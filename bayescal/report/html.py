@@ -84,14 +84,26 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
 
     ``out`` defaults to ``FIT_DIR/report.html``; JSON and Markdown go beside it.
     """
+    from bayescal.io.outputs import verify_output
+
     fit_dir = Path(fit_dir)
     out = Path(out) if out is not None else fit_dir / "report.html"
+    info = verify_output(fit_dir, ("fit",), needs=("summary.json",), verb="`bayescal report`")
+    if info is not None and "posterior.nc" not in info.files:
+        if (fit_dir / "posterior.nc").exists():
+            verify_output(fit_dir, ("fit",), needs=("posterior.nc",), verb="`bayescal report`")  # says which run
+        raise PosteriorError(
+            f"{fit_dir} holds a least-squares fit (no posterior.nc); a report needs a Bayesian backend "
+            "(--backend nuts or laplace)"
+        )
     try:
         summary = json.loads((fit_dir / "summary.json").read_text())
         kind = summary.get("model_kind", kinds.CALIBRATION)
         if kind != kinds.CALIBRATION:  # another model kind reports itself (bayescal.model.kinds)
             return kinds.get(str(kind)).write_report(fit_dir, out, seed)
-        summary["diagnostics"]["verdict"], summary["lsq"]  # noqa: B018 - the keys the report reads
+        for key in ("status", "backend", "seed", "model", "stimulus_unit", "lsq"):  # the keys the report reads
+            summary[key]  # noqa: B018
+        summary["diagnostics"]["verdict"]  # noqa: B018
     except (OSError, UnicodeError, ValueError, KeyError, TypeError) as exc:
         raise PosteriorError(
             f"{fit_dir / 'summary.json'} is missing or not a bayescal summary ({type(exc).__name__}: {exc}); "

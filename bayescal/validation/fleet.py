@@ -28,7 +28,7 @@ import pandas as pd
 
 from bayescal.validation.bench import BenchCamera, Departures, simulate_bench
 
-__all__ = ["FleetDesign", "SMALL_FLEET", "simulate_fleet"]
+__all__ = ["FleetDesign", "SMALL_FLEET", "simulate_fleet", "design_from_dict"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,90 @@ class FleetDesign:
     def names(self) -> list[str]:
         """Camera serial numbers."""
         return [f"SN{i + 1:03d}" for i in range(self.n_cameras)]
+
+
+#: the design's numbers: (minimum, whether 0 itself is allowed); counts are whole numbers
+_COUNTS = {"n_cameras": 2, "n_frames": 1, "n_pixels": 1}
+_AMOUNTS = {
+    "production_band": True,
+    "colour_spread": True,
+    "settle_years": False,
+    "campaign_jitter": True,
+    "offset_spread_dn": True,
+    "gain_step_error": True,
+    "sphere_common_rel": True,
+    "sphere_level_rel": True,
+}
+_RANGES = ("loss_range", "compression_band")
+
+
+def design_from_dict(raw: dict, source: str) -> FleetDesign:
+    """A :class:`FleetDesign` from a TOML table, every key and value checked (the key named on error)."""
+    import dataclasses
+
+    from bayescal.errors import SpecError
+    from bayescal.io import checks
+
+    fields = [f.name for f in dataclasses.fields(FleetDesign) if f.name != "camera"]
+    kw: dict = {}
+    for key, value in raw.items():
+        what = f"{source}: {key}"
+        if key not in fields:
+            raise SpecError(f"{source}: unknown key '{key}'; expected one of {', '.join(fields)}")
+        if key in _COUNTS:
+            kw[key] = checks.count(value, what, minimum=_COUNTS[key])
+        elif key in _AMOUNTS or key == "offset_creep_dn":
+            zero = _AMOUNTS.get(key)
+            x = checks.number(value, what, positive=zero is False, minimum=0.0 if zero else None)
+            kw[key] = x
+        elif key in _RANGES:
+            pair = _list(value, what)
+            if len(pair) != 2:
+                raise SpecError(f"{what} = {value!r}; expected [LOW, HIGH]")
+            lo, hi = (checks.number(v, what, minimum=0.0) for v in pair)
+            if lo > hi:
+                raise SpecError(f"{what} = {value!r}; expected LOW <= HIGH")
+            kw[key] = (lo, hi)
+        elif key == "campaigns":
+            dates = [checks.date(v, f"{what} entry") for v in _list(value, what)]
+            if not dates or any(b <= a for a, b in zip(dates, dates[1:], strict=False)):
+                raise SpecError(f"{what} = {value!r}; expected one or more ISO dates in increasing order")
+            kw[key] = tuple(d.date().isoformat() for d in dates)
+        elif key == "levels":
+            levels = tuple(checks.number(v, f"{what} entry", positive=True) for v in _list(value, what))
+            if not levels:
+                raise SpecError(f"{what} = []; expected the radiance levels (positive numbers)")
+            kw[key] = levels
+        elif key == "brief":
+            kw[key] = tuple(str(v) for v in _list(value, what))
+        elif key == "brief_levels":
+            kw[key] = tuple(checks.count(v, f"{what} entry", minimum=0) for v in _list(value, what))
+        elif key == "absent":
+            pairs = [_list(v, f"{what} entry") for v in _list(value, what)]
+            if any(len(v) != 2 for v in pairs):
+                raise SpecError(f"{what} = {value!r}; expected [[CAMERA, CAMPAIGN], ...]")
+            kw[key] = tuple((str(c), checks.date(d, f"{what} campaign").date().isoformat()) for c, d in pairs)
+    design = FleetDesign(**kw)
+    names = set(design.names())
+    for cam in design.brief + tuple(c for c, _ in design.absent):
+        if cam not in names:
+            raise SpecError(
+                f"{source}: camera '{cam}' is not among the design's cameras (SN001-SN{design.n_cameras:03d})"
+            )
+    for d in (d for _, d in design.absent):
+        if d not in design.campaigns:
+            raise SpecError(f"{source}: absent campaign {d} is not one of the campaigns {', '.join(design.campaigns)}")
+    if design.brief and any(i >= len(design.levels) for i in design.brief_levels):
+        raise SpecError(f"{source}: brief_levels {design.brief_levels} index past the {len(design.levels)} levels")
+    return design
+
+
+def _list(value, what: str) -> list:
+    from bayescal.errors import SpecError
+
+    if not isinstance(value, (list, tuple)):
+        raise SpecError(f"{what} = {value!r}; expected a list")
+    return list(value)
 
 
 #: a small fleet for tests and sampler checks: 6 cameras over 3 yearly campaigns, one swept at

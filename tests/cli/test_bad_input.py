@@ -118,20 +118,48 @@ def test_arguments(fit_dir, good_csv, capsys):
 def test_corrupt_fit_directories(tmp_path, fit_dir, capsys):
     broken = tmp_path / "broken"
     broken.mkdir()
-    for p in fit_dir.iterdir():
+    for p in fit_dir.iterdir():  # a copy of the fit folder, its record of files included
         (broken / p.name).write_bytes(p.read_bytes())
     (broken / "posterior.nc").write_bytes((fit_dir / "posterior.nc").read_bytes()[:3000])
     rc, err = _run(capsys, "predict", broken, "--exposure-s", "0.01")
-    assert rc == 2 and "posterior.nc is not a readable posterior file" in err and "truncated" in err
-    (broken / "posterior.nc").write_bytes(np.random.default_rng(0).bytes(5000))
-    rc, err = _run(capsys, "invert", broken, "--dn", "500", "--channel", "G")
+    assert rc == 2 and "posterior.nc is 3000 bytes where a calibration fit" in err and "truncated" in err
+    lone = tmp_path / "lone.nc"  # a posterior file outside any output folder is read on its own
+    lone.write_bytes(np.random.default_rng(0).bytes(5000))
+    rc, err = _run(capsys, "invert", lone, "--dn", "500", "--channel", "G")
     assert rc == 2 and "not a readable posterior file" in err
     (broken / "posterior.nc").write_bytes((fit_dir / "posterior.nc").read_bytes())
     (broken / "summary.json").write_text("{bad")
     rc, err = _run(capsys, "report", broken)
-    assert rc == 2 and "summary.json is missing or not a bayescal summary" in err
+    assert rc == 2 and "summary.json is 4 bytes where" in err
     rc, err = _run(capsys, "predict", tmp_path / "nowhere", "--exposure-s", "0.01")
     assert rc == 2 and "no posterior at" in err
+
+
+def test_report_refuses_folders_of_two_runs_older_formats_and_fleets(tmp_path, good_csv, fit_dir, capsys):
+    lsq = tmp_path / "lsq"
+    assert _run(capsys, "fit", good_csv, "--model", SPEC, "--backend", "lsq", "--out", lsq)[0] == 0
+    rc, err = _run(capsys, "report", lsq)
+    assert rc == 2 and "holds a least-squares fit" in err
+    (lsq / "posterior.nc").write_bytes((fit_dir / "posterior.nc").read_bytes())  # a Laplace posterior beside it
+    for verb in (["report", lsq], ["predict", lsq, "--exposure-s", "0.01"]):
+        rc, err = _run(capsys, *verb)
+        assert rc == 2 and "posterior.nc was not written by the run that wrote" in err, err
+    old = tmp_path / "old"  # an older release's fit folder: no record, a summary without seed or backend
+    old.mkdir()
+    (old / "summary.json").write_text(json.dumps({"status": "ok", "diagnostics": {"verdict": "ok"}}))
+    (old / "posterior.nc").write_bytes((fit_dir / "posterior.nc").read_bytes())
+    rc, err = _run(capsys, "report", old)
+    assert rc == 2 and "older bayescal" in err and "Traceback" not in err
+    (old / ".bayescal-output").write_text(json.dumps({"kind": "fit", "bayescal_version": "0.5"}))
+    rc, err = _run(capsys, "report", old)
+    assert rc == 2 and "bayescal 0.5 in an older output format" in err
+    fleet = tmp_path / "fleet"
+    from bayescal.io.outputs import staged_directory
+
+    with staged_directory(fleet, kind="fleet") as stage:
+        stage("fleet.nc").write_text("x")
+    rc, err = _run(capsys, "report", fleet)
+    assert rc == 2 and "holds a fleet fit" in err and "least-squares" not in err
 
 
 def test_characterize_bad_inputs(tmp_path, capsys):
@@ -163,16 +191,24 @@ def test_outputs_are_never_mixed(tmp_path, good_csv, fit_dir, capsys):
     assert not (out / "posterior.nc").exists()  # the old posterior went with the old fit
     assert json.loads((out / "summary.json").read_text())["backend"] == "lsq"
     rc, err = _run(capsys, "predict", out, "--exposure-s", "0.01")
-    assert rc == 2 and "no posterior" in err
+    assert rc == 2 and "holds a least-squares fit" in err
+    # an output of another kind is not replaced by a fit (the maps stay)
+    from bayescal.io.outputs import staged_directory
+
+    maps = tmp_path / "maps"
+    with staged_directory(maps, kind="maps") as stage:
+        stage("maps.nc").write_text("pixels")
+    rc, err = _run(capsys, "fit", good_csv, "--model", SPEC, "--backend", "lsq", "--out", maps)
+    assert rc == 2 and "holds per-pixel maps" in err and (maps / "maps.nc").read_text() == "pixels"
     # a directory bayescal did not write is refused before any work; a file as --out too
     foreign = tmp_path / "thesis"
     foreign.mkdir()
     (foreign / "chapter1.tex").write_text("keep me")
     rc, err = _run(capsys, "fit", good_csv, "--model", SPEC, "--backend", "lsq", "--out", foreign)
-    assert rc == 2 and "did not write; refusing to replace it" in err
+    assert rc == 2 and "refusing to replace" in err and "files bayescal did not write (chapter1.tex)" in err
     assert [p.name for p in foreign.iterdir()] == ["chapter1.tex"]
     rc, err = _run(capsys, "fit", good_csv, "--model", SPEC, "--backend", "lsq", "--out", good_csv)
-    assert rc == 2 and "is a file; expected a directory" in err
+    assert rc == 2 and "is a file; expected a folder" in err
     # nothing staged is left behind
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 

@@ -2,7 +2,7 @@
 
 import pytest
 
-from bayescal.io.files import discard_staging, scratch_directory, staged_directory
+from bayescal.io.outputs import discard_staging, scratch_directory, staged_directory
 
 
 def test_scratch_directory_is_removed_after_use_on_error_and_on_interrupt(tmp_path):
@@ -15,7 +15,11 @@ def test_scratch_directory_is_removed_after_use_on_error_and_on_interrupt(tmp_pa
         raise RuntimeError("a bad input half way")
     assert list(tmp_path.iterdir()) == []
     # Ctrl-C: the CLI's handler discards what is registered, then leaves with os._exit (no finally runs)
-    with pytest.raises(KeyboardInterrupt), scratch_directory(out, "work") as scratch, staged_directory(out) as stage:
+    with (
+        pytest.raises(KeyboardInterrupt),
+        scratch_directory(out, "work") as scratch,
+        staged_directory(out, kind="fit") as stage,
+    ):
         stage("x.txt").write_text("half")
         discard_staging()
         assert not scratch.exists() and not stage.root.exists()
