@@ -134,6 +134,11 @@ def _ranges(c: pd.DataFrame) -> dict:
     sat = int(np.argmax(c["s2_y"].to_numpy()))
     signal = (c["mu_y"] - c["mu_dark"]).to_numpy()
     top = signal[sat]
+    if np.ptp(signal) <= 1e-9 * max(float(np.max(np.abs(signal))), 1.0):
+        raise TableError(
+            f"every bright step reads the same signal ({signal[0]:.6g} DN above dark): the images do not follow "
+            "the photon counts (the same image pair listed for every step?)"
+        )
     sens = np.flatnonzero(signal[: sat + 1] <= SENSITIVITY_FRACTION * top)
     lin = np.flatnonzero(
         (signal[: sat + 1] >= LINEARITY_RANGE[0] * top) & (signal[: sat + 1] <= LINEARITY_RANGE[1] * top)
@@ -256,7 +261,14 @@ SLOPE_POWERS = (1, 2, 3, 4)
 
 
 def _line_posterior(
-    x, y, weights, n: int, rng: np.random.Generator, origin: bool = False, powers: tuple[int, ...] | None = None
+    x,
+    y,
+    weights,
+    n: int,
+    rng: np.random.Generator,
+    origin: bool = False,
+    powers: tuple[int, ...] | None = None,
+    what: str = "a regression",
 ) -> np.ndarray:
     """Draws ``(n, 2)`` of (slope, intercept), or ``(n, 1)`` slopes through the origin; with ``powers``,
     draws of the coefficients of ``sum_k b_k x^k`` over those powers (in that order).
@@ -276,7 +288,10 @@ def _line_posterior(
     p = design.shape[1]
     dof = x.size - p
     if dof < 1:
-        raise TableError("a regression needs at least 3 steps")
+        raise TableError(
+            f"{what} has {x.size} step(s) and needs at least {p + 1}: the sweep is too coarse "
+            "(EMVA 1288 asks for at least 50 steps from dark to saturation)"
+        )
     sse = float(np.sum((yw - design @ beta) ** 2))
     scale2 = sse / rng.chisquare(dof, n)
     rinv = np.linalg.inv(rr)
@@ -302,10 +317,18 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
     # and straight-line intervals covered neither (0 of 30 simulated sensors); a cubic through the origin
     # missed a late (quintic) roll-off (0.35); a quartic covers linear, cubic and quintic sensors at
     # 0.93-0.97 (tests/characterization/test_emva1288.py)
-    k = _line_posterior(sig[s], dvar[s], w_var[s], n_draws, rng, powers=SLOPE_POWERS)[:, 0]
+    where = "below 70 % of saturation"
+    what = f"the photon transfer curve (K, a quartic through 0) {where}"
+    k = _line_posterior(sig[s], dvar[s], w_var[s], n_draws, rng, powers=SLOPE_POWERS, what=what)[:, 0]
     # the mean's step-to-step error (source stability) is proportional to the signal
     resp = _line_posterior(
-        c["photons"].to_numpy()[s], sig[s], 1.0 / np.maximum(sig[s], 1e-9) ** 2, n_draws, rng, powers=SLOPE_POWERS
+        c["photons"].to_numpy()[s],
+        sig[s],
+        1.0 / np.maximum(sig[s], 1e-9) ** 2,
+        n_draws,
+        rng,
+        powers=SLOPE_POWERS,
+        what=f"the sensitivity curve (R) {where}",
     )
     resp = resp[:, 0]
     n_pix = c["n_pixels"].iloc[0]

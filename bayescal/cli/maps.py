@@ -42,7 +42,19 @@ def _stack_directory(args, stage):
         stage(f"writing the EMVA 1288 image set {path} as stacks")
         with progress_bar(1, "bright groups", quiet=args.quiet) as tick:
             write_emva_stacks(path, scratch, progress=tick)
-        yield scratch, str(path.resolve())
+        try:
+            yield scratch, str(path.resolve())
+        except TableError as exc:  # name the user's image set, not the stacks written from it
+            raise TableError(_of_source(str(exc), scratch, path)) from None
+
+
+def _of_source(message: str, scratch: Path, source: Path) -> str:
+    """A message about the stacks written from ``source``, told in terms of ``source``."""
+    import re
+
+    scratch = re.escape(str(scratch))
+    message = re.sub(scratch + r"/conditions\.csv row \d+", f"{source} (as stacks)", message)
+    return re.sub(scratch + r"/?", f"{source} (as stacks): ", message)
 
 
 def _maps(args, stage, manifest) -> int:

@@ -223,8 +223,9 @@ def _checked(check):
 
         try:
             return check(text)
-        except SpecError as exc:
-            raise argparse.ArgumentTypeError(str(exc).replace("value = ", "", 1)) from None
+        except SpecError as exc:  # "value = '0'; expected ..." reads "argument --n-avg: '0'; expected ..."
+            message = str(exc).removeprefix("value = ").removeprefix("value ")
+            raise argparse.ArgumentTypeError(message) from None
 
     convert.__name__ = check.__name__
     return convert

@@ -114,6 +114,7 @@ def _invert_with_maps(args, cal, setting, image) -> int:
     from bayescal.io.outputs import check_output_dir, staged_directory
     from bayescal.maps.apply import apply_maps
     from bayescal.maps.store import read_maps
+
     if args.image is None or not args.out:
         raise SpecError("--maps corrects an IMAGE: give the image and --out DIR")
     if args.exposure_s is None:

@@ -320,14 +320,23 @@ def integrated_draws(
             found[theta] = (z, None, -np.inf)  # not a local maximum in the rest: no weight
             return
         u = float(program.value_and_grad(jnp.asarray(z), data)[0])
+        if not (np.isfinite(u) and np.all(np.isfinite(z))):  # Newton left the density: no weight
+            found[theta] = (z, None, -np.inf)
+            return
         found[theta] = (z, chol_h, -u - np.sum(np.log(np.diag(chol_h))))
+
+    if not (np.isfinite(sd) and sd > 0 and np.all(np.isfinite(result.mode))):
+        return laplace_draws(result, n, seed), {"edge_weight": np.nan, "failed": "no finite mode or scale"}
 
     initial = result.mode[index] + step * (np.arange(grid) - 5.0 * (grid - 1) / 11.0)
     for theta in sorted(initial, key=lambda t: abs(t - result.mode[index])):  # outwards: warm starts
         conditional(float(theta))
     for _ in range(4):  # extend the grid while an edge still carries weight (a skewed scale posterior)
-        thetas = np.array(sorted(found))
-        logp = np.array([found[t][2] for t in thetas])
+        items = sorted(found.items())
+        thetas = np.array([t for t, _ in items])
+        logp = np.array([v[2] for _, v in items])
+        if not np.isfinite(logp.max()):
+            break
         w = np.exp(logp - logp.max())
         w /= w.sum()
         grow = []
@@ -340,6 +349,8 @@ def integrated_draws(
         for theta in grow:
             conditional(float(theta))
     keep = [t for t in sorted(found) if found[t][1] is not None]
+    if not keep:  # no grid point is a proper conditional maximum: the Gaussian, flagged as failed
+        return laplace_draws(result, n, seed), {"edge_weight": np.nan, "failed": "no grid point is a maximum"}
     thetas = np.array(keep)
     modes = np.array([found[t][0] for t in keep])
     chols = [found[t][1] for t in keep]

@@ -38,6 +38,8 @@ def laplace_z(model, program, result, seed: int, extra: dict) -> np.ndarray:
     if scale is not None and settings.laplace_integrate and result.positive_definite:
         z, info = integrated_draws(program, model.data, result, scale, settings.laplace_draws, seed)
         extra["integrated_scale_edge_weight"] = info["edge_weight"]
+        if "failed" in info:
+            extra["integrated_scale_failed"] = info["failed"]
     else:
         z = laplace_draws(result, settings.laplace_draws, seed)
     return z[None]
@@ -59,7 +61,9 @@ def refuse_pooled(spec) -> None:
 def laplace_problems(result, extra: dict) -> list[str]:
     """Why Laplace draws cannot be used: the mode search did not converge, or the integration grid is cut."""
     problems = [] if (result.positive_definite and result.converged) else ["MAP did not converge"]
-    if extra.get("integrated_scale_edge_weight", 0.0) > 0.01:
+    if "integrated_scale_failed" in extra:
+        problems.append(f"the excess-scatter integration failed ({extra['integrated_scale_failed']}); use nuts")
+    elif extra.get("integrated_scale_edge_weight", 0.0) > 0.01:
         problems.append("the excess-scatter integration grid is truncated (posterior far from its mode); use nuts")
     return problems
 

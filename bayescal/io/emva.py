@@ -190,21 +190,34 @@ def read_groups(path: str | os.PathLike) -> tuple[int, list[ImageGroup]]:
         try:
             if tag == "n":
                 bits = int(rest[0])
+                if not 1 <= bits <= 24:
+                    raise ValueError(f"{bits} bits; expected 1-24")
             elif tag in ("b", "d"):
-                photons = float(rest[1]) if tag == "b" else 0.0
+                texp = _non_negative(rest[0], "exposure (ns)")
+                photons = _non_negative(rest[1], "photons per pixel") if tag == "b" else 0.0
                 kind = "bright" if tag == "b" else "dark"
-                groups.append(ImageGroup(kind, float(rest[0]), photons, (), f"{path} line {lineno}"))
+                groups.append(ImageGroup(kind, texp, photons, (), f"{path} line {lineno}"))
             elif tag == "i":
                 if not groups:
                     raise ValueError("an image line before any b/d line")
+                if not rest:
+                    raise ValueError("no file name")
                 image = path.parent / " ".join(rest).replace("\\", "/")
                 groups[-1] = replace(groups[-1], images=(*groups[-1].images, image))
+            elif tag != "v":  # 'v': the descriptor format's version
+                raise ValueError(f"unknown tag '{tag}'")
         except (IndexError, ValueError) as exc:
             raise TableError(
-                f"{path}: line {lineno} '{line}': {exc}; expected 'n bits w h', 'b t p', 'd t' or 'i file'"
+                f"{path}: line {lineno} '{line}': {exc}; expected 'v version', 'n bits w h', 'b t p', 'd t' or 'i file'"
             ) from None
     if bits is None:
         raise TableError(f"{path}: no 'n bits width height' line")
+    for g in groups:
+        if len(g.images) < 2:
+            raise TableError(
+                f"{g.where}: the {g.kind} group has {len(g.images)} image(s); EMVA 1288 measures each step "
+                "with a pair of images (2) or a stack (more than 2)"
+            )
     missing = [img for g in groups for img in g.images if not img.exists()]
     if missing:
         raise TableError(
@@ -212,6 +225,13 @@ def read_groups(path: str | os.PathLike) -> tuple[int, list[ImageGroup]]:
             "(image paths are relative to the descriptor's folder)"
         )
     return bits, groups
+
+
+def _non_negative(text: str, what: str) -> float:
+    value = float(text)
+    if not np.isfinite(value) or value < 0:
+        raise ValueError(f"{what} {text}; expected a finite number >= 0")
+    return value
 
 
 _NPZ_KEYS = ("bits", "bright_texp", "bright_photons", "bright_pairs", "dark_texp", "dark_pairs")
@@ -317,7 +337,30 @@ def _from_csv(path: Path) -> Steps:
         for r in pairs.itertuples()
     ]
     stacks = {}
+    if "n_images" in df and (df["n_images"] > 2).any():
+        column = "spatial_var_of_mean_image_DN2"
+        if column not in df:
+            row = int(np.flatnonzero(df["n_images"].to_numpy() > 2)[0]) + 1
+            raise TableError(
+                f"{path}: a stack row (n_images > 2) needs the spatial variance of its mean image",
+                row=row,
+                column=column,
+            )
+        spatial = pd.to_numeric(df[column], errors="coerce")
+        bad = np.flatnonzero((df["n_images"].to_numpy() > 2) & ~np.isfinite(spatial.to_numpy(dtype=float)))
+        if bad.size:
+            raise TableError(
+                f"{path}: '{df[column].iloc[bad[0]]}' is not a finite number", row=bad[0] + 1, column=column
+            )
+        df[column] = spatial
     if "n_images" in df:
+        bad = np.flatnonzero(df["n_images"].to_numpy() < 2)
+        if bad.size:
+            raise TableError(
+                f"{path}: n_images = {df['n_images'].iloc[bad[0]]:g}; a step is a pair (2) or a stack (more)",
+                row=bad[0] + 1,
+                column="n_images",
+            )
         for r in df[df["n_images"] > 2].itertuples():
             g = {"texp_ns": r.texp_ns, "photons": r.photons_per_pixel}
             stacks[r.kind] = (

@@ -196,16 +196,44 @@ def _sample_rows(height: int, step: int, fit_pixels: int, width: int) -> list[tu
 
 
 def _statistics(manifest: Manifest, r0: int, r1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Means and variances (S, rows, W) of rows ``r0:r1`` of every stack, and each stack's saturated fraction."""
-    means, variances, saturated = [], [], []
+    """Means and variances (S, rows, W) of rows ``r0:r1`` of every stack, and per stack its smallest and
+    largest reading and the fraction of readings at the largest ``(S, 3)``."""
+    means, variances, extremes = [], [], []
     for stack in manifest.stacks:
         block = stack.read_rows(r0, r1)
         m, v = block_statistics(block)
         means.append(m)
         variances.append(v)
         top = block.max()
-        saturated.append(float(np.mean(block == top)) if top > 0 else 0.0)
-    return np.stack(means), np.stack(variances), np.asarray(saturated)
+        extremes.append((float(block.min()), float(top), float(np.mean(block == top))))
+    return np.stack(means), np.stack(variances), np.asarray(extremes)
+
+
+def _check_flats(manifest: Manifest, extremes: np.ndarray) -> None:
+    """Refuse flat stacks that cannot be mapped, naming the real cause: constant frames, or
+    saturation, judged against the sensor's full scale (``2^bits - 1`` from the manifest's ``bits``
+    column; without it, the highest reading of all stacks when that is an ADC's ``2^k - 1``, k >= 8),
+    never against a dim stack's own maximum."""
+    table = manifest.table
+    lowest, highest, at_top = extremes[:, 0], extremes[:, 1], extremes[:, 2]
+    if "bits" in table.columns:
+        full = float(2 ** int(table["bits"].iloc[0]) - 1)
+    else:
+        top = float(np.max(highest))
+        full = top if top >= 255 and float(np.log2(top + 1)).is_integer() else np.inf
+    where = manifest.directory / "conditions.csv"
+    for s in np.flatnonzero(table["kind"].to_numpy() == "flat"):
+        name = table["file"][s]
+        if at_top[s] > SATURATED_FRACTION and highest[s] >= full:
+            raise TableError(
+                f"{where} row {s + 2}: stack {name} is saturated ({at_top[s]:.1%} of its pixel readings sit at "
+                f"full scale, {full:g} DN); use a lower sphere level or exposure"
+            )
+        if lowest[s] == highest[s]:
+            raise TableError(
+                f"{where} row {s + 2}: every pixel of stack {name} reads {highest[s]:g} DN in every frame; "
+                "constant frames carry no pixel-to-pixel or temporal statistics (a synthetic or stuck stack?)"
+            )
 
 
 @dataclass(frozen=True)
@@ -248,14 +276,11 @@ def fit_map_model(
     parts = [
         _statistics(manifest, r0, r1) for r0, r1 in _sample_rows(manifest.shape[0], step, fit_pixels, manifest.shape[1])
     ]
-    saturated = np.max(np.stack([p[2] for p in parts]), axis=0)
-    table = manifest.table
-    for s, frac in enumerate(saturated):
-        if frac > SATURATED_FRACTION and table["kind"][s] == "flat":
-            raise TableError(
-                f"{manifest.directory / 'conditions.csv'} row {s + 2}: stack {table['file'][s]} is saturated "
-                f"({frac:.1%} of its pixel readings sit at its maximum); use a lower sphere level or exposure"
-            )
+    extremes = np.stack([p[2] for p in parts])  # (blocks, S, 3)
+    _check_flats(
+        manifest,
+        np.stack([extremes[:, :, 0].min(0), extremes[:, :, 1].max(0), extremes[:, :, 2].max(0)], axis=1),
+    )
     models = {}
     for name in dict.fromkeys(n for n, _, _ in planes):
         mine = [(dy, dx) for n, dy, dx in planes if n == name]

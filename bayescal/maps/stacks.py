@@ -184,6 +184,10 @@ class Manifest:
         return int(sum(np.prod(s.shape) * s.dtype.itemsize for s in self.stacks))
 
 
+#: the fewest pixels a stack may have: the population's spreads and the defect mixture need many
+MIN_PIXELS = 64
+
+
 def load_manifest(directory: str | os.PathLike, *, source: str = "") -> Manifest:
     """Read and check ``conditions.csv`` in ``directory`` and open every stack lazily.
 
@@ -231,8 +235,12 @@ def load_manifest(directory: str | os.PathLike, *, source: str = "") -> Manifest
             raise TableError(f"{where}, column kind: '{row['kind']}'; expected flat or dark")
         for col in ("exposure_s", "gain"):
             value = pd.to_numeric(pd.Series([row[col]]), errors="coerce").iloc[0]
-            if not np.isfinite(value) or value <= 0:
-                raise TableError(f"{where}, column {col}: {row[col]!r}; expected a positive number")
+            dark_zero = col == "exposure_s" and row["kind"] == "dark" and value == 0  # a bias frame (EMVA's d 0)
+            if not np.isfinite(value) or value < 0 or (value == 0 and not dark_zero):
+                raise TableError(
+                    f"{where}, column {col}: {row[col]!r}; expected a positive number"
+                    + (" (0 only for a dark stack)" if col == "exposure_s" else "")
+                )
     table["exposure_s"] = table["exposure_s"].astype(float)
     table["gain"] = table["gain"].astype(float)
     if table["gain"].nunique() > 1:
@@ -262,6 +270,11 @@ def load_manifest(directory: str | os.PathLike, *, source: str = "") -> Manifest
         raise TableError(f"{path}: no flat stacks; the relative-gain (PRNU) map needs illuminated frames")
     stacks = tuple(_open_one(directory / str(row["file"]), row, f"{path} row {i + 2}") for i, row in table.iterrows())
     shape = stacks[0].shape[1:]
+    if shape[0] * shape[1] < MIN_PIXELS:
+        raise TableError(
+            f"{path}: the frames are {shape[0]} x {shape[1]} pixels; per-pixel maps fit a population of pixels "
+            f"and need at least {MIN_PIXELS} (for a single pixel's response, fit a table with `bayescal fit`)"
+        )
     for i, s in enumerate(stacks):
         if s.shape[1:] != shape:
             raise TableError(
@@ -346,7 +359,7 @@ def write_emva_stacks(
         for kind, grp, data in todo:
             name = f"{kind}_{len(rows):03d}.npy"
             np.save(out / name, data.astype(dtype, copy=False))
-            rows.append({"file": name, "kind": kind, "exposure_s": grp.texp_ns * 1e-9, "condition": cond})
+            rows.append({"file": name, "kind": kind, "exposure_s": grp.texp_ns * 1e-9, "condition": cond, "bits": bits})
     if not rows:
         raise TableError(f"{source}: every bright group is above {max_level:.0%} of full scale; nothing to map")
     pd.DataFrame(rows).to_csv(out / MANIFEST, index=False)

@@ -309,7 +309,27 @@ def load_spec(path: str | os.PathLike) -> ModelSpec:
     return ModelSpec.from_dict(data, source=str(path))
 
 
+def _non_finite(obj, prefix: str = "") -> str | None:
+    """The dotted key of the first NaN or infinite number in a spec's sections, or None."""
+    import dataclasses
+    import math
+
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        key = f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(value):
+            found = _non_finite(value, key + ".")
+            if found:
+                return found
+        elif isinstance(value, float) and not math.isfinite(value):
+            return f"{key} = {value}"
+    return None
+
+
 def _check_spec(spec: ModelSpec) -> None:
+    bad = _non_finite(spec)
+    if bad:
+        raise SpecError(f"{bad}; expected a finite number")
     checks = [
         (1 <= spec.bits <= 24, f"bits = {spec.bits}; expected 1..24"),
         (1 <= spec.response.order <= 4, f"response.order = {spec.response.order}; expected 1..4 (the papers' range)"),
@@ -321,7 +341,10 @@ def _check_spec(spec: ModelSpec) -> None:
         (spec.noise.read_noise_dn > 0, "noise.read_noise_dn must be > 0"),
         (spec.noise.conversion_gain > 0, "noise.conversion_gain must be > 0"),
         (spec.noise.excess_dn >= 0, "noise.excess_dn must be >= 0"),
-        (spec.saturation.margin_dn >= 0, "saturation.margin_dn must be >= 0"),
+        (
+            0 <= spec.saturation.margin_dn < spec.full_scale / 2,
+            f"saturation.margin_dn = {spec.saturation.margin_dn}; expected >= 0 and below half the full scale",
+        ),
         (not spec.dark.temperature or spec.dark.exposure_slope, "dark.temperature needs dark.exposure_slope = true"),
         (spec.dark.doubling_c > 0 and spec.dark.doubling_rel_sd > 0, "dark.doubling_c and doubling_rel_sd must be > 0"),
         (spec.saturation.prnu >= 0, "saturation.prnu must be >= 0"),

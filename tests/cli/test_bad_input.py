@@ -167,7 +167,15 @@ def test_characterize_bad_inputs(tmp_path, capsys):
     (tmp_path / "nan.csv").write_text("kind,texp_ns,photons_per_pixel,mean_DN,var_temporal_DN2\nbright,1,2,nan,4\n")
     (tmp_path / "kind.csv").write_text("kind,texp_ns,photons_per_pixel,mean_DN,var_temporal_DN2\nflat,1,2,3,4\n")
     (tmp_path / "foreign.npz").write_bytes(b"not an archive")
+    head = "kind,texp_ns,photons_per_pixel,n_images,mean_DN,var_temporal_DN2\n"
+    (tmp_path / "stack.csv").write_text(head + "bright,1,2,2,3,4\ndark,1,0,2,1,1\nbright,1,2,16,3,4\n")
+    (tmp_path / "single.csv").write_text(head + "bright,1,2,1,3,4\ndark,1,0,2,1,1\n")
+    same = "".join(f"bright,{t},{t},2,500,40\ndark,{t},0,2,100,4\n" for t in range(1, 9))
+    (tmp_path / "same.csv").write_text(head + same)
     cases = {
+        "stack.csv": "row 3, column 'spatial_var_of_mean_image_DN2': ",
+        "single.csv": "row 1, column 'n_images'",
+        "same.csv": "every bright step reads the same signal (400 DN above dark)",
         "empty.csv": "is empty or not a CSV table",
         "nan.csv": "row 1, column 'mean_DN'",
         "kind.csv": "kind 'flat'; expected 'bright' or 'dark'",

@@ -194,7 +194,11 @@ FOLDER_CASES = [
     ("invert on maps", ["invert", "{maps}", "--dn", "500", "--channel", "G"], "holds per-pixel maps"),
     ("plan on maps", ["plan", "{maps}", "--channel", "G", "--dn", "5", "--exposures", "1"], "holds per-pixel maps"),
     ("fleet-query on a fit", ["fleet-query", "{fit}", "--camera", "A"], "no fleet posterior"),
-    ("report on maps", ["report", "{maps}"], "holds per-pixel maps (`bayescal maps`); `bayescal report` needs a calibration fit"),
+    (
+        "report on maps",
+        ["report", "{maps}"],
+        "holds per-pixel maps (`bayescal maps`); `bayescal report` needs a calibration fit",
+    ),
     ("report on a file", ["report", "{table}"], "is not a folder"),
     ("report on nothing", ["report", "{root}/nowhere"], "is not a folder"),
     (

@@ -570,6 +570,25 @@ def test_cli_simulate_fit_query_and_predict(tmp_path, capsys):
     assert main(["fleet-simulate", str(design), "--out", str(table)]) == 2
     assert "unknown key 'nframes'" in capsys.readouterr().err
     assert main(["fleet-query", str(out), "--camera", "SN999"]) == 2
+    capsys.readouterr()
+    # dates: parsed, refused far outside the campaigns (2024-03 to 2025-09: 5 years' reach), warned
+    # outside them, and a drift asked at a date before the camera's last campaign is refused
+    for argv, fragment in [
+        (["--camera", "SN001", "--date", "1900-01-01"], "years outside the campaigns (2024-03-01 to 2025-09-01)"),
+        (["--camera", "SN001", "--date", "2300-01-01"], "the fleet answers up to 5 years beyond them"),
+        (["--camera", "SN001", "--date", "2024-06-01", "--drift-percent", "2"], "is not after camera 'SN001''s last"),
+        (["--new-camera", "--drift-percent", "2", "--date", "2026-01-01"], "--drift-percent needs --camera"),
+        (["--camera", "SN001", "--date", "next tuesday"], "is not a date"),
+    ]:
+        try:
+            rc = main(["fleet-query", str(out), *argv])
+        except SystemExit as exc:  # argparse's own check of the date
+            rc = exc.code
+        assert rc == 2, argv
+        captured = capsys.readouterr()
+        assert fragment in captured.err and captured.out == "", (argv, captured)  # refused before any table
+    assert main(["fleet-query", str(out), "--camera", "SN001", "--date", "2027-01-01"]) == 0
+    assert "EXTRAPOLATION: 2027-01-01 is 1.33 years outside the campaigns" in capsys.readouterr().err
 
 
 def test_laplace_refuses_pooled_channels_before_any_work(seed000):

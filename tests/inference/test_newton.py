@@ -31,3 +31,16 @@ def test_newton_converges_quadratically_on_a_stiff_calibration(seed000):
             held = model.data._replace(keep=np.asarray(model.data.keep) & ~mask)
             refits.append(_newton(program, held, z)[1:])
     assert all(ok for ok, _ in refits) and max(n for _, n in refits) < 20, refits
+
+
+def test_integrated_draws_without_a_finite_mode_fall_back_flagged():
+    """A mode search that left the density (NaN mode) gives flagged Gaussian draws, not a KeyError
+    from a NaN grid point, and the Laplace verdict names the cause."""
+    from bayescal.inference.laplace import LaplaceResult, integrated_draws
+    from bayescal.inference.samplers import laplace_problems
+
+    result = LaplaceResult(np.array([0.1, np.nan, 0.3]), np.eye(3), np.nan, True, 5, True)
+    z, info = integrated_draws(None, None, result, 1, 40, seed=0)
+    assert z.shape == (40, 3) and "no finite mode" in info["failed"]
+    problems = laplace_problems(result, {"integrated_scale_failed": info["failed"]})
+    assert problems == ["the excess-scatter integration failed (no finite mode or scale); use nuts"]

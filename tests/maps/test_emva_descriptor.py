@@ -132,4 +132,15 @@ def test_bad_descriptors_are_refused_by_line(illumination_sweep, tmp_path):
     refused([*text[:last_image], "i images\\small.png"], "small.png has shape")
     # a listed image that is not there
     refused([*text, "i images\\gone.png"], "missing, e.g.")
+    # a line that is no tag of the format, one image where a pair or stack belongs, numbers out of range
+    refused([*text, "hello world"], rf"line {len(text) + 1} 'hello world': unknown tag 'hello'")
+    refused([*text, "b 1e8 500", text[-1]], "has 1 image")
+    refused([*text[:first_bright], "b -5 3000", *text[first_bright + 1 :]], "exposure \\(ns\\) -5; expected")
+    refused(["n 40 128 128" if line.startswith("n ") else line for line in text], "40 bits; expected 1-24")
+    # the standard's bias step (a dark group at exposure 0) is accepted beside the groups it needs
+    first_dark = next(i for i, line in enumerate(text) if line.startswith("d "))
+    images = [line for line in text[first_dark + 1 :] if line.startswith("i ")][:2]
+    ok = descriptor.parent / "bias.txt"
+    ok.write_text("\n".join([*text, "d 0", *images]) + "\n")
+    write_emva_stacks(ok, tmp_path / "bias")
     assert not any(p.name.startswith(".") for p in tmp_path.iterdir())

@@ -270,6 +270,22 @@ def test_bad_stacks_are_refused_by_name(sensor, tmp_path):
     np.save(work / "sat.npy", np.full((4, 192, 192), 4095, np.uint16))
     flat = int(np.flatnonzero(table.kind == "flat")[0])
     expect("saturated", table.assign(file=table.file.where(table.index != flat, "sat.npy")))
+    np.save(work / "flat100.npy", np.full((4, 192, 192), 100, np.uint16))  # constant, far below full scale
+    expect(
+        "reads 100 DN in every frame; constant frames",
+        table.assign(file=table.file.where(table.index != flat, "flat100.npy")),
+    )
+    clipped = np.minimum(np.random.default_rng(1).normal(4000, 200, (4, 192, 192)), 4095).astype(np.uint16)
+    np.save(work / "clip.npy", clipped)  # 31 % of the readings at the 12-bit full scale
+    expect(
+        r"saturated \(3\d\.\d% of its pixel readings sit at full scale, 4095 DN\)",
+        table.assign(file=table.file.where(table.index != flat, "clip.npy")),
+    )
+    np.save(work / "tiny.npy", np.ones((4, 1, 1), np.uint16))
+    with pytest.raises(bc.TableError, match="1 x 1 pixels; per-pixel maps fit a population"):
+        tiny = table.assign(file="tiny.npy")
+        tiny.to_csv(work / "conditions.csv", index=False)
+        load_manifest(work)
     expect("missing column", table.drop(columns="kind"))
     expect("column temperature_c", table.assign(temperature_c=["warm"] + [20.0] * (len(table) - 1)))
     (work / "conditions.csv").unlink()
