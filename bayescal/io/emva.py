@@ -331,7 +331,7 @@ def _from_csv(path: Path) -> Steps:
             "photons": r.photons_per_pixel,
             "mean_dn": r.mean_DN,
             "var_dn2": r.var_temporal_DN2,
-            "n_pixels": np.nan,
+            "n_pixels": getattr(r, "n_pixels", np.nan),
             "n_saturated": getattr(r, "n_sat_pixels", 0),
         }
         for r in pairs.itertuples()

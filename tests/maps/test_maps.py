@@ -341,3 +341,30 @@ def test_cli_maps_then_invert(sensor, tmp_path, capsys):
     out = read_radiance(tmp_path / "r" / "radiance.nc")
     assert out.attrs["n_defective"] == int((read_maps(tmp_path / "maps")["defect"] > 0).sum())
     assert np.isfinite(out["median"].to_numpy()).mean() > 0.99
+
+
+def test_quantisation_limited_sensor_has_no_false_noisy_pixels(tmp_path):
+    """An 8-bit sensor with 0.2 DN of dark noise and levels spread over the codes: a pixel at a half code
+    flips between two codes (about twice the channel's variance), one at a whole code shows almost none.
+    The noisy-pixel test called half such pixels noisy; judged against what the rounding gives a normal
+    pixel, none of the 16,220 normal pixels is noisy and every one of the 54 truly noisy pixels (8x the
+    noise) is found."""
+    sensor = PixelSensor(
+        height=128,
+        width=128,
+        bits=8,
+        system_gain=0.02,
+        read_noise_e=10.0,
+        offset_dn=4.5,
+        dsnu_dn=1.0,
+        prnu=0.01,
+        dark_current_e_s=20.0,
+        defect_fraction=0.01,
+    )
+    truth = write_stacks(sensor, tmp_path, photons=[0.0, 500.0, 2000.0], exposure_s=[0.05, 0.1, 0.1], frames=4, seed=1)
+    maps = build_maps(tmp_path).load()
+    found = maps["defect"].to_numpy() == 3
+    noisy = truth.defect == 3
+    assert noisy.sum() == 54
+    assert found[noisy].mean() >= 0.95
+    assert found[~noisy].sum() <= 5  # measured 0 (the old test: 9,531)
