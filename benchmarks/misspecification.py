@@ -11,7 +11,11 @@ and for gain 2 at 1/250 s (a combination never measured).  Per case and
 backend:
 
 - ``flagged``: fraction of fits reported failed (exit 3), by the diagnostics
-  or the misfit checks (:mod:`bayescal.misfit`);
+  or the misfit checks (:mod:`bayescal.fitting.misfit`), after the diagnosis
+  (:func:`bayescal.fit_diagnosed`, what ``bayescal fit`` runs) has tried the
+  library's components on a fit that does not describe its data;
+- ``adopted``: what the diagnosis switched on, and in how many fits (its most
+  common choice);
 - coverage of the 95 % intervals, over all datasets, of the sphere-relative
   coefficients ``A0, A1`` at the reference setting (3 channels), of the
   absolute gains ``A1`` (sphere scale folded in) and of held-out readings
@@ -51,6 +55,11 @@ CASES = {
     "PRNU 3 %, partial clipping": Departures(prnu=0.03),
     "PRNU 3 %, partial clipping modelled at 1 %": Departures(prnu=0.03),
     "PRNU 3 %, partial clipping modelled, learn_prnu": Departures(prnu=0.03),
+    "nonlinearity after the gain": Departures(output_nonlinearity=True),
+    "lamp spectrum: per-channel level errors 1 %, scale 1.5 %": Departures(
+        spectral_level_rel=0.01, channel_scale_rel=0.015
+    ),
+    "amplifier glow (t^2, per channel)": Departures(glow_dn_s2=2e4),
     "all of them": Departures.everything(),
 }
 #: spec changes of a case
@@ -64,19 +73,24 @@ HELD_OUT = [bc.Setting(0.01, 1.0), bc.Setting(0.004, 2.0)]
 RADIANCES = (6.0, 18.0)
 
 
-def one_dataset(spec, dep: Departures, seed: int, backend: str, timed: bool = True) -> dict:
-    """Fit one bench dataset; hits of every interval and whether the fit was flagged."""
+def one_dataset(spec, dep: Departures, seed: int, backend: str, timed: bool = True, diagnose: bool = True) -> dict:
+    """Fit one bench dataset; hits of every interval, whether the fit was flagged, what was adopted."""
     camera = with_held_out(BenchCamera(), exposures=(0.01,))
     frame, real = simulate_bench(camera, dep, seed=seed)
     if not timed:
         frame = frame.drop(columns="time_s")
+    table = bc.MeasurementTable.from_frame(frame)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        fit = bc.fit(bc.MeasurementTable.from_frame(frame), spec, backend, seed=seed)
+        if diagnose:
+            fit, found = bc.fit_diagnosed(table, spec, backend, seed=seed)
+        else:
+            fit, found = bc.fit(table, spec, backend, seed=seed), None
     channels = list(fit.model.layout.channels)
     rel = fit.draws("A_rel")[..., :2]
     gain = fit.draws("gain")
-    out = {"flagged": not fit.ok, "coef": [], "gain": [], "pred": [], "lsq": []}
+    adopted = " + ".join(found.adopted) if found is not None and found.adopted else ""
+    out = {"flagged": not fit.ok, "adopted": adopted, "coef": [], "gain": [], "pred": [], "lsq": []}
     lsq = fit.lsq
     at_ref = lsq[np.isclose(lsq.exposure_s, spec.reference.exposure_s) & (lsq.gain == 1.0) & (lsq.order == 2)]
     for ci, c in enumerate(channels):
@@ -100,10 +114,13 @@ def one_dataset(spec, dep: Departures, seed: int, backend: str, timed: bool = Tr
     return out
 
 
-def run_case(name: str, dep: Departures, backend: str, reps: int, spec) -> dict:
+def run_case(name: str, dep: Departures, backend: str, reps: int, spec, diagnose: bool = True) -> dict:
     t0 = time.perf_counter()
-    results = [one_dataset(spec, dep, 10_000 + i, backend, timed=name not in NO_TIME) for i in range(reps)]
+    results = [
+        one_dataset(spec, dep, 10_000 + i, backend, timed=name not in NO_TIME, diagnose=diagnose) for i in range(reps)
+    ]
     flagged = np.array([r["flagged"] for r in results])
+    choices = pd.Series([r["adopted"] for r in results]).value_counts()
 
     def cover(key, mask=None):
         vals = [v for r, f in zip(results, flagged, strict=True) if mask is None or not f for v in r[key]]
@@ -120,6 +137,7 @@ def run_case(name: str, dep: Departures, backend: str, reps: int, spec) -> dict:
         "coef_coverage_unflagged": cover("coef", True),
         "heldout_coverage_unflagged": cover("pred", True),
         "lsq_coef_coverage": cover("lsq"),
+        "adopted": f"{choices.index[0] or '(nothing)'} ({choices.iloc[0]}/{reps})",
         "seconds": time.perf_counter() - t0,
     }
     rates = [row[k] for k in ("coef_coverage", "gain_coverage", "heldout_coverage")]
@@ -137,6 +155,7 @@ def main() -> None:
     p.add_argument("--laplace", type=int, default=100, help="datasets per case for the laplace backend")
     p.add_argument("--nuts", type=int, default=20, help="datasets per case for the nuts backend")
     p.add_argument("--only", help="run only the cases whose name contains this")
+    p.add_argument("--no-diagnose", dest="diagnose", action="store_false", help="fit the spec alone (no diagnosis)")
     args = p.parse_args()
     spec = bc.load_spec(SPEC)
     OUT.mkdir(exist_ok=True)
@@ -149,7 +168,7 @@ def main() -> None:
         for backend, reps in (("laplace", args.laplace), ("nuts", args.nuts)):
             if reps <= 0:
                 continue
-            row = run_case(name, dep, backend, reps, spec.replace(**SPEC_CHANGES.get(name, {})))
+            row = run_case(name, dep, backend, reps, spec.replace(**SPEC_CHANGES.get(name, {})), args.diagnose)
             rows.append(row)
             print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
             new = pd.DataFrame(rows)
@@ -172,9 +191,10 @@ def _markdown(df: pd.DataFrame) -> str:
         "gain_coverage",
         "heldout_coverage",
         "lsq_coef_coverage",
+        "adopted",
         "verdict",
     ]
-    return markdown_table(df[cols]) + "\n"
+    return markdown_table(df[[c for c in cols if c in df]]) + "\n"
 
 
 if __name__ == "__main__":

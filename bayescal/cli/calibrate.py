@@ -14,17 +14,29 @@ def cmd_fit(args) -> int:
     check_output_dir(args.out, "fit")
     spec = load_spec(args.model)
     table = kinds.load_table(spec, args.data)  # the table of the spec's kind (a camera's, a film's)
-    return run_fit(table, spec, args.backend, args.seed, Path(args.out), args.quiet, report=args.report)
+    return run_fit(
+        table, spec, args.backend, args.seed, Path(args.out), args.quiet, report=args.report, diagnose=args.diagnose
+    )
 
 
 def run_fit(
-    table, spec, backend, seed, out: Path, quiet: bool, report: bool = False, measurements: bool = False
+    table,
+    spec,
+    backend,
+    seed,
+    out: Path,
+    quiet: bool,
+    report: bool = False,
+    measurements: bool = False,
+    diagnose: bool = True,
 ) -> int:
     import warnings
 
     from bayescal import FitFailedWarning, fit
     from bayescal.cli.progress import progress_bar, stage_reporter
+    from bayescal.fitting.diagnose import fit_diagnosed
     from bayescal.inference import registry as backends
+    from bayescal.model import kinds
 
     inf = spec.inference
     if backend == "emcee":
@@ -32,11 +44,19 @@ def run_fit(
     else:
         total, desc = inf.warmup + inf.draws, f"{backend} ({inf.chains} chains)"
     sampling = backends.chained(backend)
+    found = None
     with progress_bar(total, desc, quiet or not sampling) as tick:  # draws on a terminal only
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FitFailedWarning)  # reported below, loudly
-            result = fit(table, spec, backend, seed=seed, progress=tick, stage=stage_reporter(quiet))
+            stage = stage_reporter(quiet)
+            if diagnose and kinds.kind_of(spec) == kinds.CALIBRATION:
+                result, found = fit_diagnosed(table, spec, backend, seed=seed, progress=tick, stage=stage)
+            else:
+                result = fit(table, spec, backend, seed=seed, progress=tick, stage=stage)
     result.save(out, measurements=measurements)
+    if found is not None:
+        print("DIAGNOSIS: the spec's model did not describe the data; what the library has, by PSIS-LOO:")
+        print(found.describe() + "\n")
     print(result.summary_text())
     if report and result.posterior is not None:
         from bayescal.report.html import write_report

@@ -40,6 +40,12 @@ def build() -> argparse.ArgumentParser:
     f.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     f.add_argument("--quiet", action="store_true", help="no progress bar")
     f.add_argument("--report", action="store_true", help="also write OUT/report.html (+ .json, .md)")
+    f.add_argument(
+        "--no-diagnose",
+        dest="diagnose",
+        action="store_false",
+        help="when the fit does not describe its data, fail (exit 3) without trying the library's components",
+    )
     f.set_defaults(func=cmd_fit)
     pr = sub.add_parser("predict", help="posterior predictive DN at a (possibly unmeasured) setting")
     pr.add_argument("posterior", help="fit directory or its posterior.nc")

@@ -195,7 +195,12 @@ class Fit:
             lines.append(" ".join(cells))
         lines.append(
             "'vs sphere': relative to the sphere's radiance scale (what least squares sees); "
-            f"'absolute': with its {spec.sphere.common_rel:.1%} scale uncertainty folded in."
+            f"'absolute': with its {spec.sphere.common_rel:.1%} scale uncertainty folded in"
+            + (
+                f" and each channel's own {spec.sphere.channel_scale_rel:.1%}."
+                if spec.sphere.channel_scale_rel > 0
+                else "."
+            )
         )
         if "lsq_r2" in cmp:
             r2 = cmp.groupby("channel", sort=False)["lsq_r2"].first()

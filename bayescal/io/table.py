@@ -66,8 +66,12 @@ class MeasurementTable:
 
     @classmethod
     def from_frame(cls, df: pd.DataFrame, *, source: str = "<frame>") -> MeasurementTable:
-        """Validate a DataFrame and return a table; raise :class:`TableError` otherwise."""
-        return cls(*_validate(df, source), source=source)
+        """Validate a DataFrame and return a table; raise :class:`TableError` otherwise.
+
+        Rows are numbered from 1 in the frame's order, whatever its index (a filtered frame's
+        index has gaps).
+        """
+        return cls(*_validate(df.reset_index(drop=True), source), source=source)
 
     @property
     def unit(self) -> str:

@@ -55,7 +55,7 @@ class Parts:
             response=Response(spec.response, len(layout.channels)),
             dark=Dark(spec.dark, len(layout.channels), len(layout.gain_values), layout.dn_scale),
             noise=Noise(spec.noise, layout.dn_scale),
-            sphere=Sphere(spec.sphere, n_levels, bool(np.any(level_sigma > 0))),
+            sphere=Sphere(spec.sphere, n_levels, bool(np.any(level_sigma > 0)), len(layout.channels)),
             saturation=Saturation(spec.saturation),
             settings=_settings(spec, layout),
             effects=effects,

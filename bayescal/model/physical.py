@@ -47,6 +47,8 @@ def physical_draws(model: CalibrationModel, draws: dict[str, np.ndarray], seed: 
     )
     coef_rel = out["A_rel"].copy()
     coef_rel[..., 0] = a0
-    coef_abs, scale = fold_common_scale(coef_rel, spec.sphere.common_rel, ctx.rng(0x5CA1E))
+    coef_abs, scale = fold_common_scale(
+        coef_rel, spec.sphere.common_rel, ctx.rng(0x5CA1E), spec.sphere.channel_scale_rel
+    )
     out.update(gain=coef_abs[..., 1], gain_rel=coef_rel[..., 1], A_abs=coef_abs, A_rel=coef_rel, sphere_scale=scale)
     return {name: out[name] for name in reported_dims() if name in out}

@@ -338,6 +338,8 @@ def _check_spec(spec: ModelSpec) -> None:
         (spec.reference.tdi_stages >= 1, "reference.tdi_stages must be >= 1"),
         (0 <= spec.sphere.common_rel < 0.5, "sphere.common_rel must be in [0, 0.5)"),
         (0 <= spec.sphere.per_level_rel < 0.5, "sphere.per_level_rel must be in [0, 0.5)"),
+        (0 <= spec.sphere.channel_level_rel < 0.5, "sphere.channel_level_rel must be in [0, 0.5)"),
+        (0 <= spec.sphere.channel_scale_rel < 0.5, "sphere.channel_scale_rel must be in [0, 0.5)"),
         (spec.noise.read_noise_dn > 0, "noise.read_noise_dn must be > 0"),
         (spec.noise.conversion_gain > 0, "noise.conversion_gain must be > 0"),
         (spec.noise.excess_dn >= 0, "noise.excess_dn must be >= 0"),

@@ -79,12 +79,12 @@ class CalibratedRange:
         out = []
         lo, hi = self.exposure_s
         if not lo * (1 - 1e-9) <= setting.exposure_s <= hi * (1 + 1e-9):
-            out.append(f"exposure {setting.exposure_s:g} s outside calibrated {lo:g}-{hi:g} s")
+            out.append(f"exposure {setting.exposure_s:g} s outside the {lo:g}-{hi:g} s measured with light")
         if self.gains and not np.any(np.isclose(setting.gain, self.gains)):
-            out.append(f"gain {setting.gain:g} not among calibrated gains {list(self.gains)}")
+            out.append(f"gain {setting.gain:g} never measured with light (illuminated gains {list(self.gains)})")
         lo, hi = self.tdi_stages
         if not lo <= setting.tdi_stages <= hi:
-            out.append(f"TDI stages {setting.tdi_stages:g} outside calibrated {lo:g}-{hi:g}")
+            out.append(f"TDI stages {setting.tdi_stages:g} outside the {lo:g}-{hi:g} measured with light")
         if self.temperature_c is not None and setting.temperature_c is not None:
             lo, hi = self.temperature_c
             if not lo <= setting.temperature_c <= hi:
@@ -137,6 +137,7 @@ class Calibration:
     doubling_c: np.ndarray | None = None  # (S,) dark-current doubling temperature; None: no T dependence
     factors: tuple[FactorTerm, ...] = ()  # factors on the effective stimulus: settings, effects (empty: exact)
     charge_nonlinearity: bool = False  # the nonlinearity is the charge's (before the gain), not the output's
+    dark_glow: np.ndarray | None = None  # (S, C) amplifier glow, DN/s^2 at the reference gain; None: not modelled
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -242,6 +243,7 @@ class Calibration:
             doubling_c=flat(draws["doubling_c"]) if "doubling_c" in draws else None,
             factors=_factor_terms(spec, draws, frame, flat),
             charge_nonlinearity=spec.response.nonlinearity_domain == "charge",
+            dark_glow=flat(draws["dark_glow_dn_s2"]) if "dark_glow_dn_s2" in draws else None,
         )
 
     @classmethod
@@ -347,7 +349,9 @@ class Calibration:
                 )
             column, gain_factor = int(matches[0]), 1.0
         offset, slope = self.dark_offset[:, c, column], self.dark_slope[:, column]
-        return Dark.level(offset, slope, setting.exposure_s, gain_factor, warm)
+        glow = 0.0 if self.dark_glow is None else self.dark_glow[:, c]
+        g_rel = setting.gain / self.reference.gain
+        return Dark.level(offset, slope, setting.exposure_s, gain_factor, warm, glow=glow, g_rel=g_rel)
 
     def gain_ratio(self, setting: Setting, channel: str | None = None) -> np.ndarray:
         """Effective programmable gain per draw relative to the reference: ``g / g_ref`` times the
@@ -458,10 +462,12 @@ def _calibrated_range(frame, spec: ModelSpec) -> CalibratedRange:
     temps = None
     if "temperature_c" in f and np.isfinite(f["temperature_c"]).any():
         temps = (float(np.nanmin(f["temperature_c"])), float(np.nanmax(f["temperature_c"])))
+    seen = lit if lit.any() else np.ones(len(f), bool)  # a setting seen only in the dark has no measured response
+    exposures = f["exposure_s"].to_numpy()[seen]
     return CalibratedRange(
-        exposure_s=(float(f["exposure_s"].min()), float(f["exposure_s"].max())),
-        gains=tuple(sorted({float(g) for g in f["gain"]})),
-        tdi_stages=(float(np.min(tdi)), float(np.max(tdi))),
+        exposure_s=(float(exposures.min()), float(exposures.max())),
+        gains=tuple(sorted({float(g) for g in f["gain"].to_numpy()[seen]})),
+        tdi_stages=(float(np.min(tdi[seen])), float(np.max(tdi[seen]))),
         max_effective=max_x,
         temperature_c=temps,
     )

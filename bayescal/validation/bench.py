@@ -17,7 +17,15 @@ assumptions (each switchable, all realistic):
 - **PRNU with partial clipping**: a wider pixel response spread than the
   model's 1 % (``prnu``), with every pixel clipped separately at full scale;
 - **non-proportional exposures**: a named exposure integrates ``factor`` times
-  its nominal time (seed 000 Table 2: +5 % at 1/100 s).
+  its nominal time (seed 000 Table 2: +5 % at 1/100 s);
+- **nonlinearity after the gain**: the compression acts on the amplified output
+  (the same curve in DN at every gain) instead of on the collected charge;
+- **a lamp whose spectrum changes**: on top of the per-level errors, each
+  channel sees its own scale error (``channel_scale_rel``) of the sphere's
+  radiance, as a lamp's colour temperature differs from the one its
+  calibration assumed;
+- **amplifier glow**: a dark signal growing with the square of the exposure,
+  different in each channel (``glow_dn_s2`` at gain 1, scaling with the gain).
 
 The camera defaults follow seed 000 (12-bit Bayer CCD, Table 1 gains, dark
 about 50 DN at gain 1 and 460 DN at gain 4, 20 frames of 32 x 32 pixels).
@@ -32,6 +40,9 @@ import pandas as pd
 
 __all__ = ["BenchCamera", "Departures", "Realisation", "simulate_bench", "with_held_out"]
 
+#: how the amplifier glow divides between the channels (R, G, B): the amplifier sits nearer some pixels
+GLOW_SHARE = (1.0, 0.4, 1.8)
+
 
 @dataclass(frozen=True)
 class Departures:
@@ -44,6 +55,9 @@ class Departures:
     dark_drift_dn: float = 0.0
     prnu: float = 0.01
     exposure_factor: tuple[tuple[float, float], ...] = ()  # (exposure_s, true factor) pairs: non-proportional
+    output_nonlinearity: bool = False
+    channel_scale_rel: float = 0.0
+    glow_dn_s2: float = 0.0
 
     @classmethod
     def everything(cls) -> Departures:
@@ -97,6 +111,7 @@ class Realisation:
     gain_factor: dict
     sphere_scale: float
     prnu_map: dict
+    channel_scale: dict = field(default_factory=dict)  # each channel's lamp scale error (1: none)
 
     def integration(self, exposure_s: float) -> float:
         """Effective integration time (s): a shutter offset, and any exposure that is not proportional."""
@@ -108,8 +123,12 @@ class Realisation:
         cam = self.camera
         k = self.integration(exposure_s) / self.integration(cam.t_ref)  # the datasheet's t_ref is the effective one
         e = np.asarray(radiance, dtype=float) * k  # radiance-equivalent at the reference integration time
-        lin = cam.responsivity[channel] * e + cam.compression[channel] * e**2
-        s = lin * gain * self.gain_factor.get(gain, 1.0)
+        g = gain * self.gain_factor.get(gain, 1.0)
+        if self.departures.output_nonlinearity:  # the same curvature per DN of output at every gain
+            out = cam.responsivity[channel] * e * g
+            s = out + cam.compression[channel] / cam.responsivity[channel] ** 2 * out**2
+        else:
+            s = (cam.responsivity[channel] * e + cam.compression[channel] * e**2) * g
         if self.departures.rolloff:
             knee = 1.6 * cam.full_scale
             s = s / (1.0 + (np.maximum(s, 0.0) / knee) ** 4) ** 0.25
@@ -118,7 +137,9 @@ class Realisation:
     def dark_dn(self, channel: str, exposure_s: float, gain: float, drift: float = 0.0) -> float:
         """Mean dark level (DN) at a gain step and exposure, plus any drift."""
         cam = self.camera
-        return cam.offset_dn[gain] + cam.channel_offset_dn[channel] + cam.dark_current_dn_s[gain] * exposure_s + drift
+        glow = self.departures.glow_dn_s2 * GLOW_SHARE[cam.channels.index(channel) % 3] * exposure_s**2 * gain
+        dark = cam.offset_dn[gain] + cam.channel_offset_dn[channel] + cam.dark_current_dn_s[gain] * exposure_s
+        return dark + glow + drift
 
     def read(
         self,
@@ -157,7 +178,7 @@ class Realisation:
                 cam.compression[channel] * self.gain_factor.get(1.0, 1.0) * region,
             ]
         )
-        return a * self.sphere_scale ** np.arange(3) if relative else a
+        return a * (self.sphere_scale * self.channel_scale.get(channel, 1.0)) ** np.arange(3) if relative else a
 
 
 def simulate_bench(
@@ -191,7 +212,8 @@ def simulate_bench(
         shared = np.asarray(level_errors, dtype=float)
     spectral = dep.spectral_level_rel * rng.standard_normal((len(cam.levels), len(cam.channels)))
     prnu = {c: 1.0 + dep.prnu * rng.standard_normal(cam.n_pixels) for c in cam.channels}
-    real = Realisation(cam, dep, factor, scale, prnu)
+    channel_scale = {c: 1.0 + dep.channel_scale_rel * rng.standard_normal() for c in cam.channels}
+    real = Realisation(cam, dep, factor, scale, prnu, channel_scale)
     plan = []
     for exposures, sweep_gains, level_idx in cam.sweeps:
         idx = range(len(cam.levels)) if level_idx is None else level_idx
@@ -209,7 +231,7 @@ def simulate_bench(
             nominal, true = 0.0, 0.0
         else:
             nominal = cam.levels[li]
-            true = nominal * scale * (1.0 + shared[li] + spectral[li, cam.channels.index(c)])
+            true = nominal * scale * channel_scale[c] * (1.0 + shared[li] + spectral[li, cam.channels.index(c)])
         dn = real.read(c, true, t, g, rng, drift=drift)
         rows.append(
             {

@@ -117,3 +117,16 @@ def test_csv_roundtrip(tmp_path, seed000):
     sim.table.write_csv(tmp_path / "d.csv")
     again = bc.load_table(tmp_path / "d.csv")
     pd.testing.assert_frame_equal(again.frame[sim.table.frame.columns], sim.table.frame, check_dtype=False, rtol=1e-9)
+
+
+def test_a_filtered_frame_keeps_its_rows(seed000):
+    """A DataFrame with gaps in its index (a filter's result) is read row by row, not by index label."""
+    import bayescal as bc
+
+    spec, design = seed000
+    frame = bc.simulate(spec, design, seed=2).table.to_frame()
+    part = frame[frame.gain == 1.0]
+    assert part.index.to_numpy().max() >= len(part)  # the filter left gaps
+    table = bc.MeasurementTable.from_frame(part)
+    assert len(table) == len(part)
+    assert table.frame["dn_mean"].tolist() == part["dn_mean"].tolist()

@@ -94,7 +94,7 @@ def test_predict_and_plan_cli(calibrated, tmp_path, capsys):
     out = tmp_path / "pred.csv"
     assert main(["predict", str(fitdir), "--exposure-s", "0.02", "--radiance", "10", "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "EXTRAPOLATION" in err and "exposure 0.02 s outside calibrated" in err
+    assert "EXTRAPOLATION" in err and "exposure 0.02 s outside the" in err and "measured with light" in err
     import pandas as pd
 
     table = pd.read_csv(out)

@@ -4,7 +4,10 @@ Physics: seed 000 section 5.1 (about 50 DN at gain step 1, over 450 DN at step 4
 over 2.7-10 ms; channel colour barely matters), seed 002 section 4.1 (dark roughly linear in
 integration time, doubling every ~7 degC) and eq. 12 (offset scales with the video gain)::
 
-    dark = (offset + slope t 2^((T - T_ref) / T_d)) g_factor + drift * time
+    dark = (offset + slope t 2^((T - T_ref) / T_d)) g_factor + glow_c t^2 g / g_ref + drift * time
+
+The ``glow`` term is a dark signal that grows with the square of the exposure and differs by
+channel (the light of a read-out amplifier reaching the pixels, integrated while it runs).
 
 :meth:`Dark.level` is that equation; the model, predictions and the simulator all call it.
 """
@@ -45,7 +48,14 @@ class DarkSpec:
     gain; needs a ``time_s`` column.  Offsets then refer to the start of the
     run.  Without it a drift is absorbed by the dark slope and the setting
     factors, and ``A0`` is silently biased (validation benchmark).  The
-    default, ``"auto"``, fits the drift whenever the table has ``time_s``.
+    default, ``"auto"``, fits the drift whenever the table has ``time_s``;
+    ``"order"`` fits it over the rows' order in the table, for a table that
+    lists its rows as they were measured but has no ``time_s``.
+
+    ``glow``: a per-channel dark signal ``glow_c t^2`` (DN at the reference
+    gain, scaling with the gain like a signal), prior Normal(0,
+    ``slope_prior_sd``) per longest exposure squared: amplifier glow, which
+    a dark slope linear in exposure misreads as an offset.
 
     Priors (fractions of full scale): each offset Normal(``offset_prior_mean``,
     ``offset_prior_sd``), each dark slope (per longest exposure of the table)
@@ -62,8 +72,9 @@ class DarkSpec:
     offset_prior_mean: float = 0.05
     offset_prior_sd: float = 0.25
     slope_prior_sd: float = 0.05
-    drift: Literal[True, False, "auto"] = "auto"
+    drift: Literal[True, False, "auto", "order"] = "auto"
     drift_prior_dn: float = 5.0
+    glow: bool = False
 
 
 @dataclass(frozen=True)
@@ -80,6 +91,7 @@ class Dark(Component):
         "b0_mu_w": ("gain_setting",),
         "T_d": (),
         "drift": (),
+        "b2": ("channel",),
     }
     reported = {
         "dark_offset": ("channel", "gain_setting"),
@@ -88,6 +100,7 @@ class Dark(Component):
         "dark_slope_ref": (),
         "doubling_c": (),
         "dark_drift_dn": (),
+        "dark_glow_dn_s2": ("channel",),
     }
 
     spec: DarkSpec
@@ -102,13 +115,18 @@ class Dark(Component):
 
     # ------------------------------------------------------------------ physics
     @staticmethod
-    def level(offset, slope, exposure, gain_factor=1.0, temperature_factor=1.0, drift=0.0, time=0.0):
-        """Dark level ``(offset + slope t f_T) g_factor + drift time`` (any units, any array namespace).
+    def level(
+        offset, slope, exposure, gain_factor=1.0, temperature_factor=1.0, drift=0.0, time=0.0, glow=0.0, g_rel=1.0
+    ):
+        """Dark level ``(offset + slope t f_T) g_factor + glow t^2 g_rel + drift time`` (any units, any array
+        namespace).
 
         ``gain_factor`` is ``g / g_ref`` for an offset proportional to gain (else 1);
-        ``temperature_factor`` the dark current's :meth:`doubling` factor.
+        ``temperature_factor`` the dark current's :meth:`doubling` factor; ``glow`` the channel's
+        amplifier glow at the reference gain, which scales with ``g_rel = g / g_ref``.
         """
-        return (offset + slope * (exposure * temperature_factor)) * gain_factor + drift * time
+        base = (offset + slope * (exposure * temperature_factor)) * gain_factor + drift * time
+        return base + glow * exposure * exposure * g_rel
 
     @staticmethod
     def doubling(delta_c, doubling_c, xp=np):
@@ -152,7 +170,13 @@ class Dark(Component):
         drift = 0.0
         if self.spec.drift:  # a linear drift over the run, common to every channel and gain
             drift = numpyro.sample("drift", dist.Normal(0.0, self.spec.drift_prior_dn / self.dn_scale))
-        return self.level(b0[data.channel, column], slope, data.t, gain_factor, warm, drift, data.time)
+        glow = 0.0
+        if self.spec.glow:  # amplifier glow: per channel, quadratic in exposure
+            b2 = numpyro.sample("b2", dist.Normal(0.0, self.spec.slope_prior_sd).expand([self.n_channels]).to_event(1))
+            glow = b2[data.channel]
+        return self.level(
+            b0[data.channel, column], slope, data.t, gain_factor, warm, drift, data.time, glow, data.g_rel
+        )
 
     # ---------------------------------------------------------------- reporting
     def describe(self) -> str:
@@ -161,6 +185,8 @@ class Dark(Component):
             + (", exposure slope" if self.spec.exposure_slope else "")
             + (", doubling with temperature" if self.spec.temperature else "")
             + (", drift over the run" if self.spec.drift else "")
+            + (" (row order)" if self.spec.drift == "order" else "")
+            + (", amplifier glow (t^2, per channel)" if self.spec.glow else "")
         )
 
     def offset_at(self, draws, channel: int, gain: float, exposure_s: float, layout, ref_gain: float) -> np.ndarray:
@@ -171,7 +197,9 @@ class Dark(Component):
         else:
             column, gain_factor = layout.gain_values.index(gain), 1.0
         slope = draws["b1"][..., column] if self.spec.exposure_slope else 0.0
-        level = self.level(draws["b0"][..., channel, column], slope, exposure_s / layout.t_scale, gain_factor)
+        glow = draws["b2"][..., channel] if "b2" in draws else 0.0
+        t = exposure_s / layout.t_scale
+        level = self.level(draws["b0"][..., channel, column], slope, t, gain_factor, glow=glow, g_rel=gain / ref_gain)
         return level * layout.dn_scale
 
     def physical(self, draws, ctx) -> dict[str, np.ndarray]:
@@ -195,4 +223,6 @@ class Dark(Component):
             out["doubling_c"] = draws["T_d"]
         if "drift" in draws:
             out["dark_drift_dn"] = draws["drift"] * self.dn_scale
+        if "b2" in draws:
+            out["dark_glow_dn_s2"] = draws["b2"] * layout.dn_scale / layout.t_scale**2
         return out

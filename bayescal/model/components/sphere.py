@@ -29,11 +29,19 @@ class SphereSpec:
     folded in after fitting (docs/architecture.md, section 4).  ``per_level_rel``:
     relative standard uncertainty of each level's reading, shared by all
     channels and settings at that level, sampled non-centred (0 turns it off;
-    a ``radiance_u_rel`` column overrides it per level).
+    a ``radiance_u_rel`` column overrides it per level).  ``channel_level_rel``:
+    relative sd of each level's error in each channel on top of the shared one
+    (a lamp whose spectrum changes with its level: the channels see different
+    errors), sampled non-centred; 0 turns it off.  ``channel_scale_rel``:
+    relative sd of each channel's own scale error (the lamp's spectrum differs
+    from the one its calibration assumed), degenerate with that channel's gain
+    like the common scale, and folded in the same way.
     """
 
     common_rel: float = 0.03
     per_level_rel: float = 0.0
+    channel_level_rel: float = 0.0
+    channel_scale_rel: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -41,44 +49,62 @@ class Sphere(StimulusFactor):
     """Per-level multiplicative stimulus errors ``1 + sigma_l z_l`` (none when disabled)."""
 
     section = "sphere"
-    sites = {"level_z": ("level",)}
-    reported = {"level_error": ("level",), "sphere_scale": ()}
+    sites = {"level_z": ("level",), "level_w": ("level", "channel")}
+    reported = {"level_error": ("level",), "level_channel_error": ("level", "channel"), "sphere_scale": ()}
 
     spec: SphereSpec
     n_levels: int
     per_level: bool
+    n_channels: int = 1
 
     @staticmethod
     def factor(level_error):
         """The stimulus a level delivers, relative to its reading: ``1 + e_level``."""
         return 1.0 + level_error
 
+    @property
+    def per_channel(self) -> bool:
+        """Level errors that differ by channel are sampled."""
+        return self.spec.channel_level_rel > 0 and self.n_levels > 0
+
     def sample(self, data):
         """Per-row stimulus multiplier (dark rows and disabled component: 1)."""
-        if not self.per_level or self.n_levels == 0:
+        if (not self.per_level and not self.per_channel) or self.n_levels == 0:
             return 1.0
         import jax.numpy as jnp
         import numpyro
         import numpyro.distributions as dist
 
-        z = numpyro.sample("level_z", dist.Normal(0.0, 1.0).expand([self.n_levels]).to_event(1))
-        err = jnp.concatenate([data.level_sigma * z, jnp.zeros(1)])
-        return self.factor(err[data.level])
+        err = 0.0
+        if self.per_level:
+            z = numpyro.sample("level_z", dist.Normal(0.0, 1.0).expand([self.n_levels]).to_event(1))
+            err = jnp.concatenate([data.level_sigma * z, jnp.zeros(1)])[data.level]
+        if self.per_channel:
+            shape = [self.n_levels, self.n_channels]
+            w = numpyro.sample("level_w", dist.Normal(0.0, 1.0).expand(shape).to_event(2))
+            w = jnp.concatenate([self.spec.channel_level_rel * w, jnp.zeros((1, self.n_channels))])
+            err = err + w[data.level, data.channel]
+        return self.factor(err)
 
     def describe(self) -> str:
-        return f"sphere: common {self.spec.common_rel:.1%} folded in" + (
-            f", {self.n_levels} level errors" if self.per_level else ""
+        return (
+            f"sphere: common {self.spec.common_rel:.1%} folded in"
+            + (f", {self.n_levels} level errors" if self.per_level else "")
+            + (f", per-channel level errors {self.spec.channel_level_rel:.1%}" if self.per_channel else "")
         )
 
     def physical(self, draws, ctx) -> dict[str, np.ndarray]:
         """Relative error of each level's stimulus reading (the common scale: :func:`fold_common_scale`)."""
-        if "level_z" not in draws:
-            return {}
-        return {"level_error": draws["level_z"] * ctx.level_sigma}
+        out = {}
+        if "level_z" in draws:
+            out["level_error"] = draws["level_z"] * ctx.level_sigma
+        if "level_w" in draws:
+            out["level_channel_error"] = draws["level_w"] * self.spec.channel_level_rel
+        return out
 
 
 def fold_common_scale(
-    coef_rel: np.ndarray, common_rel: float, rng: np.random.Generator
+    coef_rel: np.ndarray, common_rel: float, rng: np.random.Generator, channel_rel: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fold the sphere's common scale into monomial coefficients.
 
@@ -95,6 +121,9 @@ def fold_common_scale(
         Relative standard uncertainty of the sphere scale (0: none).
     rng : numpy.random.Generator
         Source of the scale draws (seeded by the caller).
+    channel_rel : float
+        Relative standard uncertainty of each channel's own scale (the third axis of
+        ``coef_rel``), drawn independently per channel and draw (0: none).
 
     Returns
     -------
@@ -107,4 +136,7 @@ def fold_common_scale(
     powers = np.arange(coef_rel.shape[-1])
     extra = coef_rel.ndim - 3
     s = scale.reshape(draw_shape + (1,) * extra + (1,))
+    if channel_rel > 0 and extra >= 1:
+        own = np.exp(channel_rel * rng.standard_normal(draw_shape + coef_rel.shape[2:3]))
+        s = s * own.reshape(own.shape + (1,) * extra)
     return coef_rel / s**powers, scale

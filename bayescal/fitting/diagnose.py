@@ -1,0 +1,228 @@
+"""When a fit does not describe its data: find what in the library does, and say by how much.
+
+A real camera departs from any fixed model in ways the library has components for: its
+nonlinearity arises after the gain rather than in the charge, its response needs a higher
+order near full scale, its dark level drifted over a session that recorded no times, an
+amplifier glows during long exposures, the lamp's spectrum changes with its level.  The
+misfit checks (:mod:`bayescal.fitting.misfit`) see that something is wrong; they cannot say
+which of these it is (a drifting dark level and a mis-placed nonlinearity both leave
+residuals that run along the row order).
+
+:func:`diagnose` refits the table with each candidate switched on (Laplace: the search costs
+seconds), ranks them by PSIS-LOO against the model so far, adopts the best one when its
+gain in expected log predictive density exceeds twice its standard error, and repeats
+(at most :data:`MAX_STEPS` switches) until a fit passes every check.  :func:`fit_diagnosed`
+is a fit that does this when its own checks fail: the user's backend then fits the spec
+the search found, the diagnosis rides along in the diagnostics (``summary.json``), and the
+fit fails (exit 3) only when nothing in the library explains the data.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pandas as pd
+
+from bayescal.errors import FitFailedWarning
+from bayescal.fitting.fit import fit
+from bayescal.fitting.result import Fit
+from bayescal.io.table import MeasurementTable
+from bayescal.model.spec import ModelSpec
+
+__all__ = ["Diagnosis", "candidates", "diagnose", "fit_diagnosed", "MAX_STEPS"]
+
+#: at most this many switches are adopted, one at a time
+MAX_STEPS = 3
+#: a switch is adopted when it raises elpd_loo by more than this many standard errors of the difference
+EVIDENCE_SE = 2.0
+#: lamp level errors per channel (relative sd per level) and each channel's own scale error, when switched on
+CHANNEL_LEVEL_REL = 0.01
+CHANNEL_SCALE_REL = 0.015
+
+
+def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
+    """The switches the library can try on ``spec`` for ``table``: name -> spec changes.
+
+    Only switches the table can inform: the nonlinearity's domain needs several illuminated
+    gains; the glow dark rows at three or more exposures; a drift over the row order a table
+    without ``time_s``.
+    """
+    frame = table.frame
+    lit = frame["stimulus"] > 0
+    out: dict[str, dict] = {}
+    r, d, s = spec.response, spec.dark, spec.sphere
+    if r.order >= 2 and frame.loc[lit, "gain"].nunique() > 1:
+        other = "output" if r.nonlinearity_domain == "charge" else "charge"
+        where = "after the gain" if other == "output" else "in the charge, before the gain"
+        out[f"nonlinearity of the {other} ({where})"] = {"response": {"nonlinearity_domain": other}}
+    if r.order < 4:
+        out[f"response order {r.order + 1} (a roll-off near full scale)"] = {"response": {"order": r.order + 1}}
+    drifting = d.drift is True or d.drift == "order" or (d.drift == "auto" and "time_s" in frame)
+    if not drifting:
+        if "time_s" in frame:
+            out["a dark level that drifted over time_s"] = {"dark": {"drift": True}}
+        else:
+            out["a dark level that drifted over the run (the rows' order)"] = {"dark": {"drift": "order"}}
+    if not d.glow and d.exposure_slope and frame.loc[~lit, "exposure_s"].nunique() >= 3:
+        out["amplifier glow (a dark signal in t^2, per channel)"] = {"dark": {"glow": True}}
+    if s.channel_level_rel == 0:
+        out["lamp errors that differ by channel (its spectrum changes with its level)"] = {
+            "sphere": {"channel_level_rel": CHANNEL_LEVEL_REL, "channel_scale_rel": CHANNEL_SCALE_REL}
+        }
+    return out
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """What the search found.
+
+    Attributes
+    ----------
+    adopted : tuple of str
+        The switches adopted, in order (empty: none explained more than the spec).
+    spec : ModelSpec
+        The spec with them switched on.
+    explained : bool
+        Whether a fit of ``spec`` passes every check.
+    steps : list of pandas.DataFrame
+        Per step, every candidate beside the model so far: elpd_diff against it (positive:
+        better), its standard error, and whether its fit passed every check.
+    """
+
+    adopted: tuple[str, ...]
+    spec: ModelSpec
+    explained: bool
+    steps: list
+
+    def describe(self) -> str:
+        """The diagnosis in words, for the command line."""
+        lines = []
+        for i, step in enumerate(self.steps):
+            lines.append(f"step {i + 1}: each candidate against the model so far (elpd_loo difference +- se):")
+            for r in step.itertuples():
+                ok = "passes every check" if r.fit_ok else "still fails"
+                lines.append(f"  {r.elpd_diff:+9.1f} +- {r.dse:6.1f}  {r.candidate}  ({ok})")
+        if self.adopted:
+            what = " and ".join(self.adopted)
+            verdict = "explains the data" if self.explained else "explains part of the data; the fit still fails"
+            lines.append(f"adopted: {what}: {verdict}")
+            lines.append("to fit it directly, change the spec: " + _changes_text(self.changes()))
+        else:
+            lines.append("nothing in the library explains the data better than the spec")
+        return "\n".join(lines)
+
+    def changes(self) -> dict:
+        """The spec changes adopted, merged by section."""
+        merged: dict = {}
+        for step in self.steps:
+            for r in step.itertuples():
+                if r.candidate in self.adopted:
+                    for section, keys in r.changes.items():
+                        merged.setdefault(section, {}).update(keys)
+        return merged
+
+    def to_dict(self) -> dict:
+        """JSON-ready form (``summary.json``'s ``diagnostics.diagnosis``)."""
+        return {
+            "adopted": list(self.adopted),
+            "explained": self.explained,
+            "changes": self.changes(),
+            "steps": [s.drop(columns="changes").to_dict("records") for s in self.steps],
+        }
+
+
+def _changes_text(changes: dict) -> str:
+    return "; ".join(f"[{sec}] " + ", ".join(f"{k} = {v!r}" for k, v in keys.items()) for sec, keys in changes.items())
+
+
+def _quiet_fit(table, spec, backend, seed):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FitFailedWarning)
+        warnings.simplefilter("ignore", UserWarning)
+        return fit(table, spec, backend, seed=seed)
+
+
+def _loo(result: Fit):
+    import arviz as az
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return az.loo(result.posterior, pointwise=True)
+
+
+def _difference(current, candidate) -> tuple[float, float]:
+    """elpd_loo of ``candidate`` minus that of ``current`` and the standard error of the difference."""
+    a = np.asarray(current.elpd_i).ravel()
+    b = np.asarray(candidate.elpd_i).ravel()
+    d = b - a
+    return float(d.sum()), float(np.sqrt(d.size * np.var(d)))
+
+
+def diagnose(table: MeasurementTable, spec: ModelSpec, seed: int = 0, base: Fit | None = None) -> Diagnosis:
+    """Search the library's switches for a model that describes ``table`` (see the module docstring).
+
+    ``base``: a Laplace fit of ``spec`` already made (refitted otherwise).
+    """
+    current_spec = spec
+    current = base if base is not None and base.backend == "laplace" else _quiet_fit(table, spec, "laplace", seed)
+    current_loo = _loo(current)
+    adopted: list[str] = []
+    steps = []
+    for _ in range(MAX_STEPS):
+        if current.ok:
+            break
+        rows, fits = [], {}
+        for name, changes in candidates(current_spec, table).items():
+            trial = current_spec.replace(**changes)
+            result = _quiet_fit(table, trial, "laplace", seed)
+            loo = _loo(result)
+            diff, se = _difference(current_loo, loo)
+            fits[name] = (trial, result, loo)
+            rows.append({"candidate": name, "elpd_diff": diff, "dse": se, "fit_ok": result.ok, "changes": changes})
+        if not rows:
+            break
+        step = pd.DataFrame(rows).sort_values("elpd_diff", ascending=False).reset_index(drop=True)
+        steps.append(step)
+        best = step.iloc[0]
+        if best.elpd_diff <= EVIDENCE_SE * best.dse:
+            break
+        current_spec, current, current_loo = fits[best.candidate]
+        adopted.append(str(best.candidate))
+    return Diagnosis(tuple(adopted), current_spec, bool(current.ok), steps)
+
+
+def _misfit_only(result: Fit) -> bool:
+    """The fit failed its checks of the data (misfit, held-out settings, outlying rows), not its sampler."""
+    d = result.diagnostics
+    sampler = d.divergences > 0 or (np.isfinite(d.max_rhat) and d.max_rhat > 1.01)
+    return not d.ok and not sampler and result.posterior is not None
+
+
+def fit_diagnosed(
+    table: MeasurementTable, spec: ModelSpec, backend: str = "nuts", *, seed: int = 0, stage=None, **kw
+) -> tuple[Fit, Diagnosis | None]:
+    """:func:`~bayescal.fitting.fit.fit`, and when the fit does not describe its data, :func:`diagnose`:
+    the backend then fits the spec the search found.  Returns the final fit (its diagnostics carry
+    the diagnosis) and the diagnosis (None when the first fit passed, or failed in its sampler)."""
+    first = fit(table, spec, backend, seed=seed, stage=stage, **kw)
+    if first.ok or backend == "lsq" or not _misfit_only(first):
+        return first, None
+    if stage is not None:
+        stage("the fit does not describe its data: trying what the library has (Laplace, PSIS-LOO)")
+    found = diagnose(table, spec, seed, base=first if backend == "laplace" else None)
+    final = first
+    if found.adopted:
+        if stage is not None:
+            stage(f"refitting with {' and '.join(found.adopted)}")
+        final = fit(table, found.spec, backend, seed=seed, **kw)
+    diag = final.diagnostics.with_check("diagnosis", [], found.to_dict())
+    if not found.adopted or not final.ok:
+        problem = (
+            "nothing in the library explains the data (see diagnosis)"
+            if not found.adopted
+            else f"with {' and '.join(found.adopted)} the fit still fails (see diagnosis)"
+        )
+        diag = replace(diag, ok=False, problems=tuple(dict.fromkeys(diag.problems + (problem,))))
+    return replace(final, diagnostics=diag), found
