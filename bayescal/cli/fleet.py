@@ -94,14 +94,16 @@ def cmd_fleet_simulate(args) -> int:
 
     from bayescal.errors import SpecError
     from bayescal.io.files import read_text, write_text_atomic
+    from bayescal.io.resources import example_path
     from bayescal.validation.fleet import design_from_dict, simulate_fleet
 
-    text = read_text(args.design, SpecError, "fleet design (TOML)")
+    path = example_path(args.design, "design")
+    text = read_text(path, SpecError, "fleet design (TOML)")
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"{args.design} is not valid TOML: {exc}") from None
-    design = design_from_dict(raw, str(args.design))
+        raise SpecError(f"{path} is not valid TOML: {exc}") from None
+    design = design_from_dict(raw, str(path))
     table, truth = simulate_fleet(design, seed=args.seed)
     write_text_atomic(args.out, table.to_csv(index=False, float_format="%.10g"))
     if args.truth:

@@ -7,6 +7,7 @@ import math
 
 from bayescal.cli.calibrate import cmd_demo, cmd_fit, cmd_report, cmd_sbc, cmd_select, cmd_simulate
 from bayescal.cli.characterize import cmd_characterize
+from bayescal.cli.examples import cmd_examples
 from bayescal.cli.fleet import cmd_fleet, cmd_fleet_query, cmd_fleet_simulate
 from bayescal.cli.maps import cmd_maps
 from bayescal.cli.products import cmd_invert, cmd_plan, cmd_predict, cmd_scene
@@ -29,7 +30,7 @@ def build() -> argparse.ArgumentParser:
     sub = p.add_subparsers(required=True, metavar="COMMAND")
     f = sub.add_parser("fit", help="fit a calibration model to a measurement table")
     f.add_argument("data", help="CSV or Parquet measurement table")
-    f.add_argument("--model", required=True, help="model spec (TOML), e.g. models/seed000_bayer.toml")
+    f.add_argument("--model", required=True, help="model spec (TOML), or a shipped one's name: seed000, seed002, ...")
     f.add_argument(
         "--backend",
         default="nuts",
@@ -202,6 +203,10 @@ def build() -> argparse.ArgumentParser:
     fs.add_argument("--truth", help="also write the true coefficients per unit to this CSV")
     fs.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     fs.set_defaults(func=cmd_fleet_simulate)
+    ex = sub.add_parser("examples", help="list the shipped specs, designs and data; copy one out to edit it")
+    ex.add_argument("--copy", metavar="NAME", help="copy this example (a design with its spec) to --to")
+    ex.add_argument("--to", default=".", help="folder to copy into (default: this one)")
+    ex.set_defaults(func=cmd_examples)
     d = sub.add_parser("demo", help="simulate the seed 000 camera, fit it, compare with least squares")
     d.add_argument("--out", default="demo-out", help="output directory (default demo-out)")
     d.add_argument("--seed", type=seed, default=0, help=SEED_HELP)

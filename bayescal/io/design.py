@@ -118,8 +118,11 @@ class Design:
 
 
 def load_design(path: str | os.PathLike) -> Design:
-    """Load a :class:`Design` (with optional truth) from TOML."""
-    path = Path(path)
+    """Load a :class:`Design` (with optional truth) from TOML; ``path`` may also name a shipped design
+    (``"seed000"``: :func:`bayescal.io.resources.example_path`)."""
+    from bayescal.io.resources import example_path
+
+    path = example_path(path, "design")
     design = Design.from_dict(read_toml(path, "design (TOML)"), source=str(path))
     if design.spec is not None and not Path(design.spec).is_absolute():
         design = dataclasses.replace(design, spec=str(path.parent / design.spec))

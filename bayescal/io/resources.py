@@ -1,11 +1,19 @@
-"""Where the shipped model specs and example designs are (the repository's ``models/``)."""
+"""The shipped model specs, example designs and data (the repository's ``models/``), by file or by name.
+
+Every command that reads a spec or a design also takes a shipped example's name, from any
+folder: ``--model seed000`` is ``models/seed000_bayer.toml``, ``--design seed000`` is
+``models/seed000_design.toml`` (:func:`example_path`; ``bayescal examples`` lists them and
+copies them out).
+"""
 
 from __future__ import annotations
 
+import os
+from dataclasses import dataclass
 from importlib.resources import files
 from pathlib import Path
 
-__all__ = ["models_dir"]
+__all__ = ["models_dir", "Example", "examples", "example_path"]
 
 
 def models_dir() -> Path:
@@ -21,3 +29,53 @@ def models_dir() -> Path:
     # ``bayescal.models`` has no ``__init__``: asked for directly, importlib gives a namespace path whose str is
     # not a file path; as a folder of the ``bayescal`` package it is a plain one
     return Path(str(files("bayescal") / "models"))
+
+
+@dataclass(frozen=True)
+class Example:
+    """One shipped file: its name (the file's stem), what it is, what its first comment line says."""
+
+    name: str
+    kind: str  # "spec", "design", "fleet design" or "data"
+    path: Path
+    about: str
+
+
+def _kind(path: Path) -> str:
+    if path.suffix != ".toml":
+        return "data"
+    if path.stem.endswith("_design"):
+        return "fleet design" if path.stem.startswith("fleet") else "design"
+    return "spec"
+
+
+def _about(path: Path) -> str:
+    if path.suffix != ".toml":
+        return "example measurements"
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if line.startswith("#"):
+            return line.lstrip("# ").strip()
+    return ""
+
+
+def examples() -> list[Example]:
+    """Every shipped spec, design and data file, by name."""
+    return [
+        Example(p.stem, _kind(p), p, _about(p)) for p in sorted(models_dir().iterdir()) if p.suffix in (".toml", ".csv")
+    ]
+
+
+def example_path(name: str | os.PathLike, kind: str) -> Path:
+    """``name`` as a path when it is one; else the shipped example it names, for ``kind`` ``"spec"`` or
+    ``"design"``: its file's stem (``seed000_bayer``) or the stem's first part (``seed000``, ``fleet``,
+    ``8bit``).  A name that is neither stays as given (the reader then says no such file)."""
+    path = Path(name)
+    if path.exists() or path.suffix or len(path.parts) > 1:
+        return path
+    wanted = {"spec": ("spec",), "design": ("design", "fleet design")}[kind]
+    mine = [e for e in examples() if e.kind in wanted]
+    for e in mine:
+        if e.name == str(name):
+            return e.path
+    prefix = [e for e in mine if e.name.split("_")[0] == str(name)]
+    return prefix[0].path if len(prefix) == 1 else path

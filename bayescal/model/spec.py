@@ -301,7 +301,11 @@ class ModelSpec:
 
 def load_spec(path: str | os.PathLike) -> ModelSpec:
     """Load a model spec from a TOML file (see ``models/*.toml``): a :class:`ModelSpec`, or the spec of
-    the kind the file names (``kind = "film"``, :mod:`bayescal.model.kinds`)."""
+    the kind the file names (``kind = "film"``, :mod:`bayescal.model.kinds`).  ``path`` may also name a
+    shipped spec (``"seed000"``: :func:`bayescal.io.resources.example_path`)."""
+    from bayescal.io.resources import example_path
+
+    path = example_path(path, "spec")
     data = read_toml(path, "model spec (TOML)")
     kind = data.pop("kind", kinds.CALIBRATION)
     if kind != kinds.CALIBRATION:

@@ -1,0 +1,47 @@
+"""The ``examples`` verb: list the shipped specs, designs and data, and copy them out to edit."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+
+def cmd_examples(args) -> int:
+    from bayescal.errors import SpecError
+    from bayescal.io.resources import example_path, examples
+
+    shipped = examples()
+    if not args.copy:
+        width = max(len(e.name) for e in shipped)
+        print("Shipped examples (use a name wherever a spec or design file goes, e.g. --model seed000):")
+        for e in shipped:
+            print(f"  {e.name:<{width}}  {e.kind:<12}  {e.about}")
+        print("Copy one to edit it: bayescal examples --copy NAME [--to DIR]")
+        return 0
+    picked = [e for e in shipped if e.name == args.copy]
+    if not picked:
+        for kind in ("spec", "design"):
+            path = example_path(args.copy, kind)
+            picked += [e for e in shipped if e.path == path]
+    if not picked:
+        raise SpecError(f"no shipped example '{args.copy}'; `bayescal examples` lists them")
+    # a design names its spec: copy both, so the copy runs as it is
+    for e in list(picked):
+        if e.kind == "design":
+            spec = _design_spec(e.path)
+            picked += [s for s in shipped if s.path.name == spec and s not in picked]
+    target = Path(args.to)
+    clash = [target / e.path.name for e in picked if (target / e.path.name).exists()]
+    if clash:
+        raise SpecError(f"{clash[0]} exists; bayescal does not overwrite your files (give another --to)")
+    target.mkdir(parents=True, exist_ok=True)
+    for e in picked:
+        shutil.copyfile(e.path, target / e.path.name)
+        print(f"copied {e.kind} {e.name} to {target / e.path.name}")
+    return 0
+
+
+def _design_spec(path: Path) -> str | None:
+    import tomllib
+
+    return tomllib.loads(path.read_text(encoding="utf-8")).get("spec")

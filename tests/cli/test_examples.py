@@ -1,0 +1,37 @@
+"""Shipped examples by name, from a folder outside the repository, against the installed package."""
+
+import subprocess
+import sys
+
+
+def _bayescal(cwd, *args):
+    proc = subprocess.run(
+        [sys.executable, "-m", "bayescal.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=300
+    )
+    return proc.returncode, proc.stdout + proc.stderr
+
+
+def test_examples_by_name_from_any_folder(tmp_path):
+    rc, out = _bayescal(tmp_path, "examples")
+    assert rc == 0 and "seed000_bayer" in out and "seed002_tdi" in out and "fleet_seed000_design" in out
+    rc, out = _bayescal(tmp_path, "simulate", "--design", "seed000", "--out", "d.csv", "--seed", "1")
+    assert rc == 0 and (tmp_path / "d.csv").is_file(), out
+    rc, out = _bayescal(tmp_path, "fit", "d.csv", "--model", "seed000", "--backend", "lsq", "--out", "f", "--quiet")
+    assert rc == 0 and (tmp_path / "f" / "summary.json").is_file(), out
+    rc, out = _bayescal(tmp_path, "fleet-simulate", "fleet", "--out", "fleet.csv")
+    assert rc == 0 and "20 cameras" in out, out
+    # copied out to edit: a name gives its spec and design, a design comes with the spec it names, and
+    # nothing of the user's is overwritten
+    rc, out = _bayescal(tmp_path, "examples", "--copy", "seed002", "--to", "mine")
+    assert rc == 0 and sorted(p.name for p in (tmp_path / "mine").iterdir()) == [
+        "seed002_design.toml",
+        "seed002_tdi.toml",
+    ]
+    rc, out = _bayescal(tmp_path, "examples", "--copy", "seed000_design", "--to", "mine")
+    assert rc == 0 and {"seed000_design.toml", "seed000_bayer.toml"} <= {p.name for p in (tmp_path / "mine").iterdir()}
+    (tmp_path / "mine" / "seed002_tdi.toml").write_text("# my edits\n")
+    rc, out = _bayescal(tmp_path, "examples", "--copy", "seed002", "--to", "mine")
+    assert rc == 2 and "does not overwrite your files" in out
+    assert (tmp_path / "mine" / "seed002_tdi.toml").read_text() == "# my edits\n"
+    rc, out = _bayescal(tmp_path, "examples", "--copy", "nonesuch")
+    assert rc == 2 and "no shipped example 'nonesuch'" in out
