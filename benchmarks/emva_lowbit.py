@@ -79,8 +79,8 @@ def summary(df: pd.DataFrame) -> pd.DataFrame:
                     "n": len(part),
                     "coverage": cover,
                     "mc_sd": float(np.sqrt(cover * (1 - cover) / len(part))),
-                    "median |error| posterior": rel.median(),
-                    "median |error| standard": std.median(),
+                    "median relative error, posterior": rel.median(),
+                    "median relative error, standard": std.median(),
                     "median 95 % width / truth": width,
                     "problems reported": int((part.problems > 0).sum()),
                 }
@@ -100,8 +100,7 @@ def main() -> None:
     df.to_csv(OUT / "emva_lowbit.csv", index=False, float_format="%.6g")
     s = summary(df)
     first = df.iloc[0]
-    text = (
-        "# EMVA 1288 on quantisation-limited sensors\n\n"
+    text = (  # no title: the docs include the file as it is (docs/validation/index.md)
         f"{args.sensors} simulated 8- and 10-bit sensors (`benchmarks/emva_lowbit.py --sensors {args.sensors} "
         f"--seed {args.seed}`, {elapsed:.0f} s): coverage of the 95 % intervals of K and QE, with its Monte Carlo "
         "sd, and the median relative error of the posterior median and of the standard's estimate.\n\n"

@@ -32,9 +32,8 @@ import bayescal as bc
 from pathlib import Path
 
 BACKEND = os.environ.get("BAYESCAL_NB_BACKEND", "nuts")  # the tests use "laplace" for speed
-MODELS = Path.cwd().parent / "models"  # notebooks run from notebooks/
-spec = bc.load_spec(MODELS / "seed000_bayer.toml")
-design = bc.load_design(MODELS / "seed000_design.toml")
+spec = bc.load_spec("seed000")  # the shipped examples, by name (`bayescal examples` lists them)
+design = bc.load_design("seed000")
 sim = bc.simulate(spec, design, seed=1)
 sim.table.frame.head()""",
     ),
@@ -86,9 +85,10 @@ plan.table.head()""",
         "code",
         """import tempfile
 from bayescal.report.html import write_report
-out = tempfile.mkdtemp()
-fit.save(out)
-print(write_report(out))""",
+with tempfile.TemporaryDirectory() as tmp:
+    fit.save(Path(tmp) / "fit")
+    page = write_report(Path(tmp) / "fit")
+    print(f"{page.name}: {page.stat().st_size / 1e6:.1f} MB, {page.read_text().count('<img')} figures embedded")""",
     ),
 ]
 

@@ -15,7 +15,9 @@ def cmd_characterize(args) -> int:
     out = check_output_dir(args.out, "characterization")
     stage = stage_reporter()
     stage(f"reading {args.input} (image pairs and stacks are reduced streaming)")
-    steps = load_steps(args.input)
+    from bayescal.io.resources import example_path
+
+    steps = load_steps(example_path(args.input, "data"))
     stage("standard method and posteriors")
     res = characterize(steps, seed=args.seed)
     with staged_directory(out, kind="characterization") as stage:

@@ -19,6 +19,8 @@ def cmd_examples(args) -> int:
         print("Copy one to edit it: bayescal examples --copy NAME [--to DIR]")
         return 0
     picked = [e for e in shipped if e.name == args.copy]
+    if not picked:  # a name's every file: seed003 is the film's spec and its example data
+        picked = [e for e in shipped if e.name.split("_")[0] == args.copy]
     if not picked:
         for kind in ("spec", "design"):
             path = example_path(args.copy, kind)

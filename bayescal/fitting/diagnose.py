@@ -216,6 +216,8 @@ def diagnose(table: MeasurementTable, spec: ModelSpec, seed: int = 0, base: Fit 
         for name, changes in candidates(current_spec, table).items():
             trial = current_spec.replace(**changes)
             result = _quiet_fit(table, trial, "laplace", seed)
+            if _level_trend(result) >= LAMP_TREND:  # the "lamp errors" follow the signal: a shape, not a lamp
+                continue
             loo = _loo(result)
             diff, se = _difference(current_loo, loo)
             fits[name] = (trial, result, loo)
@@ -232,11 +234,77 @@ def diagnose(table: MeasurementTable, spec: ModelSpec, seed: int = 0, base: Fit 
     return Diagnosis(tuple(adopted), current_spec, bool(current.ok), steps)
 
 
+#: the rows a range check refits: illuminated readings below this fraction of full scale (and every dark row)
+RANGE_FRACTION = 0.6
+#: a small-signal gain that moves by more than this many sd of the difference between the two fits fails
+RANGE_Z = 4.0
+
+
+def range_check(table: MeasurementTable, spec: ModelSpec, result: Fit, seed: int = 0) -> tuple[list[str], dict]:
+    """Does the response over the whole range agree with the response below :data:`RANGE_FRACTION` of full
+    scale?  A higher order adopted for a roll-off near full scale passes every check of the residuals, yet
+    the polynomial then bends its small-signal gain to follow the roll-off (on the independent bench
+    ``A0, A1`` covered 0.70).  So the low rows are refitted alone (Laplace) and each channel's
+    sphere-relative ``A1`` compared: nested fits of the same rows differ by ``sqrt(sd_low^2 - sd_all^2)``.
+    """
+    frame = table.frame
+    low = (frame["stimulus"].to_numpy() == 0) | (frame["dn_mean"].to_numpy() < RANGE_FRACTION * spec.full_scale)
+    info: dict = {"fraction": RANGE_FRACTION, "rows": int(low.sum())}
+    if low.all() or result.posterior is None:
+        return [], info
+    try:
+        sub = _quiet_fit(
+            MeasurementTable.from_frame(table.to_frame()[low].reset_index(drop=True)), spec, "laplace", seed
+        )
+    except Exception as exc:  # too few levels below the cut for the response's order: nothing to compare
+        info["skipped"] = str(exc)
+        return [], info
+    if sub.posterior is None:
+        return [], info
+    a_all, a_low = (np.asarray(f.posterior["posterior"]["A_rel"])[..., 1] for f in (result, sub))
+    mean_all, mean_low = a_all.mean(axis=(0, 1)), a_low.mean(axis=(0, 1))
+    sd = np.sqrt(np.maximum(a_low.var(axis=(0, 1)) - a_all.var(axis=(0, 1)), 0.05 * a_low.var(axis=(0, 1))))
+    z = (mean_all - mean_low) / sd
+    info["z"] = dict(zip(result.model.layout.channels, np.round(z, 2).tolist(), strict=True))
+    worst = int(np.argmax(np.abs(z)))
+    if abs(z[worst]) <= RANGE_Z:
+        return [], info
+    channel = result.model.layout.channels[worst]
+    return [
+        f"channel {channel}: the small-signal gain A1 over the whole range differs from the one below "
+        f"{RANGE_FRACTION:.0%} of full scale by {z[worst]:+.1f} sd ({mean_all[worst]:.5g} against "
+        f"{mean_low[worst]:.5g}): the response rolls off near full scale in a shape no polynomial of the library "
+        f"draws; calibrate below the roll-off (saturation.margin_dn = {spec.full_scale * (1 - RANGE_FRACTION):.0f} "
+        "treats the top as clipped)"
+    ], info
+
+
 def kinds_calibration(spec: ModelSpec) -> bool:
     """A camera calibration (not another model kind, such as a film's)."""
     from bayescal.model import kinds
 
     return kinds.kind_of(spec) == kinds.CALIBRATION
+
+
+#: per-channel lamp level errors whose posterior means rank-correlate this strongly with the level's stimulus
+#: in some channel are a response shape (a roll-off) absorbed level by level, not a lamp's scatter: with 12
+#: levels an |rho| this large arises by chance with probability ~0.002
+LAMP_TREND = 0.8
+
+
+def _level_trend(result: Fit) -> float:
+    """Largest |Spearman rho| over channels between the fitted per-channel level errors and the levels'
+    stimulus (0 without per-channel level errors)."""
+    from scipy.stats import spearmanr
+
+    post = None if result.posterior is None else result.posterior["posterior"]
+    if post is None or "level_channel_error" not in post:
+        return 0.0
+    errors = np.asarray(post["level_channel_error"]).mean(axis=(0, 1))  # (level, channel), levels by stimulus
+    if errors.shape[0] < 5:
+        return 0.0
+    order = np.arange(errors.shape[0])
+    return float(max(abs(spearmanr(order, errors[:, c]).statistic) for c in range(errors.shape[1])))
 
 
 def _misfit_only(result: Fit) -> bool:
@@ -275,6 +343,8 @@ def fit_diagnosed(
             stage(f"refitting with {' and '.join(found.adopted)}")
         final = fit(table, found.spec, backend, seed=seed, **kw)
     diag = final.diagnostics.with_check("diagnosis", [], found.to_dict())
+    if found.adopted and final.ok and any(a.startswith("response order") for a in found.adopted):
+        diag = diag.with_check("range", *range_check(table, found.spec, final, seed))
     if not found.adopted or not final.ok:
         problem = (
             "nothing in the library explains the data (see diagnosis)"

@@ -67,12 +67,12 @@ def examples() -> list[Example]:
 
 def example_path(name: str | os.PathLike, kind: str) -> Path:
     """``name`` as a path when it is one; else the shipped example it names, for ``kind`` ``"spec"`` or
-    ``"design"``: its file's stem (``seed000_bayer``) or the stem's first part (``seed000``, ``fleet``,
-    ``8bit``).  A name that is neither stays as given (the reader then says no such file)."""
+    ``"design"`` or ``"data"``: its file's stem (``seed000_bayer``) or the stem's first part (``seed000``,
+    ``fleet``, ``8bit``, ``emva``).  A name that is neither stays as given (the reader then says no such file)."""
     path = Path(name)
     if path.exists() or path.suffix or len(path.parts) > 1:
         return path
-    wanted = {"spec": ("spec",), "design": ("design", "fleet design")}[kind]
+    wanted = {"spec": ("spec",), "design": ("design", "fleet design"), "data": ("data",)}[kind]
     mine = [e for e in examples() if e.kind in wanted]
     for e in mine:
         if e.name == str(name):

@@ -1,0 +1,63 @@
+"""Every command of the README and of the guides' runnable blocks, run as a user would: from a
+folder outside the repository, against the installed package, one block after another."""
+
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import ROOT
+
+MARKER = "<!-- the commands below run in tests/cli/test_docs_commands.py -->"
+
+
+def _blocks(path: Path, marked: bool) -> list[list[str]]:
+    """The bash blocks of a page (with ``marked``, only those after the marker), as command lines."""
+    text = path.read_text()
+    out = []
+    for m in re.finditer(r"```bash\n(.*?)```", text, re.S):
+        if marked and not text[: m.start()].rstrip().endswith(MARKER):
+            continue
+        lines = [line.split(" #")[0].strip() for line in m.group(1).splitlines()]
+        out.append([line for line in lines if line and not line.startswith("#")])
+    return out
+
+
+def _run(cwd: Path, line: str) -> None:
+    args = shlex.split(line)
+    assert args[0] == "bayescal", line
+    proc = subprocess.run(
+        [sys.executable, "-m", "bayescal.cli", *args[1:]], cwd=cwd, capture_output=True, text=True, timeout=900
+    )
+    assert proc.returncode == 0, f"{line}\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
+
+
+def test_readme_commands_run_from_any_folder(tmp_path):
+    blocks = _blocks(ROOT / "README.md", marked=False)
+    setup = [b for b in blocks if any(line.startswith("bash .ci/setup") for line in b)]
+    assert len(setup) == 2  # the two commands a newcomer needs (run by CI itself)
+    commands = [line for b in blocks if b not in setup for line in b]
+    assert len(commands) >= 5
+    for line in commands:
+        _run(tmp_path, line)
+    assert (tmp_path / "fit" / "report.html").is_file() and (tmp_path / "ccd" / "characterization.json").is_file()
+
+
+GUIDES = ["getting-started.md", "guides/emva1288.md", "guides/calibrate.md", "guides/film.md", "guides/fleet.md"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("page", GUIDES)
+def test_guide_commands_run_from_any_folder(tmp_path, page):
+    blocks = _blocks(ROOT / "docs" / page, marked=True)
+    assert blocks, f"{page} has no runnable block"
+    for line in blocks[0]:
+        _run(tmp_path, line)
+
+
+def test_every_guide_has_a_runnable_block():
+    for page in GUIDES:
+        assert _blocks(ROOT / "docs" / page, marked=True), page
