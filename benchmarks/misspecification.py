@@ -23,8 +23,10 @@ backend:
 - least squares' 95 % confidence intervals of ``A0, A1`` (sphere-relative)
   beside them.
 
-A case passes when every Bayesian coverage is in [0.90, 0.98] or at least
-95 % of its fits are flagged; above 0.98 it is reported as conservative.  Writes
+The verdict reads the fits that passed, as a user would take them: a case covers when every
+coverage among them is in [0.90, 0.98] (conservative above), is flagged when at least 95 % of
+its fits fail loudly, refuses often when more than a third fail, and is silently wrong when the
+passing fits' intervals cover under 0.90.  Writes
 ``benchmarks/results/misspecification.{csv,md}`` (rows merge across ``--only`` runs).
 """
 
@@ -135,19 +137,31 @@ def run_case(name: str, dep: Departures, backend: str, reps: int, spec, diagnose
         "gain_coverage": cover("gain"),
         "heldout_coverage": cover("pred"),
         "coef_coverage_unflagged": cover("coef", True),
+        "gain_coverage_unflagged": cover("gain", True),
         "heldout_coverage_unflagged": cover("pred", True),
         "lsq_coef_coverage": cover("lsq"),
         "adopted": f"{choices.index[0] or '(nothing)'} ({choices.iloc[0]}/{reps})",
         "seconds": time.perf_counter() - t0,
     }
-    rates = [row[k] for k in ("coef_coverage", "gain_coverage", "heldout_coverage")]
-    if row["flagged"] >= 0.95:
-        row["verdict"] = "flagged"
-    elif min(rates) < 0.90:
-        row["verdict"] = "SILENTLY WRONG"
-    else:
-        row["verdict"] = "covers" if max(rates) <= 0.98 else "covers (conservative)"
+    row["verdict"] = verdict(row)
     return row
+
+
+def verdict(row) -> str:
+    """A case's verdict from the fits that passed (what a user would take): ``flagged`` when 95 % of the
+    fits fail loudly; ``SILENTLY WRONG`` when the passing fits' intervals cover under 0.90; else it
+    covers, ``conservative`` above 0.98, ``refuses often`` when more than a third of the fits fail."""
+    if row["flagged"] >= 0.95:
+        return "flagged"
+    unflagged = [row.get(f"{k}_coverage_unflagged", np.nan) for k in ("coef", "gain", "heldout")]
+    rates = [
+        u if np.isfinite(u) else row[f"{k}_coverage"]
+        for u, k in zip(unflagged, ("coef", "gain", "heldout"), strict=True)
+    ]
+    if min(rates) < 0.90:
+        return "SILENTLY WRONG"
+    out = "covers" if max(rates) <= 0.98 else "covers (conservative)"
+    return out + (", refuses often" if row["flagged"] > 1 / 3 else "")
 
 
 def main() -> None:
@@ -177,6 +191,7 @@ def main() -> None:
                 new = pd.concat([old[keep], new], ignore_index=True)
             order = {c: i for i, c in enumerate(CASES)}
             new = new.sort_values(["case", "backend"], key=lambda s: s.map(order) if s.name == "case" else s)
+            new["verdict"] = [verdict(r) for r in new.to_dict("records")]
             new.to_csv(csv, index=False, float_format="%.4g")
             (OUT / "misspecification.md").write_text(_markdown(new))
 
@@ -188,6 +203,7 @@ def _markdown(df: pd.DataFrame) -> str:
         "datasets",
         "flagged",
         "coef_coverage",
+        "coef_coverage_unflagged",
         "gain_coverage",
         "heldout_coverage",
         "lsq_coef_coverage",
