@@ -42,9 +42,10 @@ def main() -> None:
     spec = bc.load_spec(ROOT / "models/seed000_bayer.toml")
     sim = bc.simulate(spec, bc.load_design(ROOT / "models/seed000_design.toml"), seed=0)
     res = {}
+    parts = os.environ.get("GPU_BENCH_PARTS", "fit,fit_many,invert").split(",")  # a lease is short: pick
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for backend in ("laplace", "nuts"):
+        for backend in ("laplace", "nuts") if "fit" in parts else ("laplace",):
             t = time.perf_counter()
             f = bc.fit(sim.table, spec, backend, seed=0)
             cold = time.perf_counter() - t
@@ -55,6 +56,18 @@ def main() -> None:
                 warm.append(time.perf_counter() - t)
             res[backend] = {"cold_s": cold, "warm_s": float(np.median(warm)), "stages": f.timings}
             print(backend, res[backend], flush=True)
+        # many datasets of one structure: fit_many (the MAP searches vmapped on an accelerator)
+        tables = [
+            bc.simulate(spec, bc.load_design(ROOT / "models/seed000_design.toml"), seed=s).table for s in range(32)
+        ]
+        for backend in ("laplace", "nuts") if "fit_many" in parts else ():
+            bc.fit_many(tables[:2], spec, backend, seeds=[0, 1])  # compile
+            t = time.perf_counter()
+            batch = bc.fit_many(tables, spec, backend, seeds=list(range(32)))
+            wall = time.perf_counter() - t
+            ok = int(np.sum(batch.diagnostics["ok"])) if "ok" in batch.diagnostics else None
+            res[f"fit_many_{backend}_32"] = {"wall_s": wall, "per_fit_s": wall / 32, "ok": ok}
+            print(f"fit_many {backend}", res[f"fit_many_{backend}_32"], flush=True)
     cal = bc.Calibration.from_fit(f)
     s = bc.Setting(0.004, 1.0)
     z = jnp.asarray(np.random.default_rng(0).standard_normal(cal.n_draws))
