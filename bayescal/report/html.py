@@ -211,12 +211,16 @@ def _settings(frame: pd.DataFrame) -> list[tuple[float, float, float]]:
 
 
 def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> str:
+    """Response curves per channel (top) and, below them, everything relative to the posterior median:
+    the 95 % credible and predictive bands, the readings and least squares, in DN, where the bands a
+    full-scale plot cannot show are visible.  Nothing is drawn past full scale."""
     chans = list(cal.channels)
-    fig, axes = subplots(1, len(chans), figsize=(4.6 * len(chans), 4.0), squeeze=False)
+    fig, axes = subplots(2, len(chans), figsize=(4.6 * len(chans), 7.0), squeeze=False, height_ratios=(3, 2))
     rng = np.random.default_rng(0)
     n_avg = float(np.median(frame.get("n_frames", 1) * frame.get("n_pixels", 1)))
     colours = colour_cycle()
-    for ax, ch in zip(axes[0], chans, strict=True):
+    full = cal.full_scale
+    for ax, rel, ch in zip(axes[0], axes[1], chans, strict=True):
         for k, (t, g, m) in enumerate(_settings(frame)):
             col = colours[k % len(colours)]
             rows = frame[(frame.channel == ch) & np.isclose(frame.exposure_s, t) & np.isclose(frame.gain, g)]
@@ -229,28 +233,47 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
             pred = cal.sample_dn(ch, grid, s, rng, n_avg=n_avg, relative=True)
             lo, hi = np.quantile(mean, [0.025, 0.975], axis=0)
             plo, phi = np.quantile(pred, [0.025, 0.975], axis=0)
+            med = np.median(mean, axis=0)
+            below = med < full  # relative panel: only where the curve is below full scale
             ax.fill_between(grid, plo, phi, color=col, alpha=0.12, lw=0)
             ax.fill_between(grid, lo, hi, color=col, alpha=0.35, lw=0)
-            ax.plot(grid, np.median(mean, axis=0), color=col, lw=1.2, label=f"{t:g} s, gain {g:g}")
+            ax.plot(grid, med, color=col, lw=1.2, label=f"{t:g} s, gain {g:g}")
+            rel.fill_between(grid[below], (plo - med)[below], (phi - med)[below], color=col, alpha=0.15, lw=0)
+            rel.fill_between(grid[below], (lo - med)[below], (hi - med)[below], color=col, alpha=0.4, lw=0)
             cens = rows["dn_mean"] >= cal.saturation_dn
             ax.plot(rows["stimulus"][~cens], rows["dn_mean"][~cens], "o", color=col, ms=3.5)
             ax.plot(rows["stimulus"][cens], rows["dn_mean"][cens], "x", color="k", ms=6, mew=1.5)
+            at = np.interp(rows["stimulus"][~cens], grid, med)
+            rel.plot(rows["stimulus"][~cens], rows["dn_mean"][~cens] - at, "o", color=col, ms=3)
             fitrow = lsq[(lsq.channel == ch) & np.isclose(lsq.exposure_s, t) & np.isclose(lsq.gain, g)]
             if len(fitrow):
                 r = fitrow[fitrow.order == fitrow.order.max()].iloc[0]
                 a = [r[f"A{i}"] for i in range(int(r.order) + 1)]
-                ax.plot(grid, np.polyval(a[::-1], grid), "--", color=col, lw=0.9)
-        ax.axhline(cal.full_scale, color="0.5", lw=0.6)
-        ax.set_ylim(0, cal.full_scale * 1.06)
+                line = np.polyval(a[::-1], grid)
+                keep = line <= full  # a least-squares polynomial knows no full scale: drawn only below it
+                ax.plot(grid[keep], line[keep], ls=(0, (4, 2)), color="0.15", lw=1.1, alpha=0.85)
+                rel.plot(grid[keep & below], (line - med)[keep & below], ls=(0, (4, 2)), color=col, lw=1.2)
+        ax.axhline(full, color="0.5", lw=0.6)
+        ax.set_ylim(0, full * 1.06)
         ax.set(title=f"channel {ch}", xlabel=f"{cal.stimulus} ({cal.unit})", ylabel="mean DN")
+        rel.axhline(0.0, color="0.5", lw=0.6)
+        rel.set(xlabel=f"{cal.stimulus} ({cal.unit})", ylabel="DN minus the posterior median")
     handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
+    from matplotlib.lines import Line2D
+
+    handles += [
+        Line2D([], [], ls=(0, (4, 2)), color="0.15", lw=1.1),
+        Line2D([], [], ls="", marker="x", color="k", mew=1.5),
+    ]
+    labels += ["least squares (below full scale)", "clipped reading (censored)"]
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), fontsize=8, frameon=False)
     fig.suptitle(
-        "posterior median (line), 95 % credible and predictive bands (too narrow to see at this scale: the "
-        "residual panels below show them in sd units); dashed: least squares; x: censored (clipped)",
+        "top: posterior median, 95 % credible (dark) and predictive (light) bands, readings, least squares, up to "
+        f"full scale ({full:g} DN); bottom: the same relative to the posterior median, in DN (readings of one "
+        "sphere level share its reading's error, which the bands at a nominal radiance leave out)",
         fontsize=9,
     )
-    fig.tight_layout(rect=(0, 0.1, 1, 0.95))
+    fig.tight_layout(rect=(0, 0.08, 1, 0.95))
     return _png(fig)
 
 
@@ -396,6 +419,10 @@ def _fig_chains(tree, backend: str) -> dict[str, str]:
     out = {}
     for key, plot in (("trace", azp.plot_trace_dist), ("rank", azp.plot_rank)):
         pc = plot(tree, var_names=["gain_rel"], backend="matplotlib")
+        try:  # the colours are the chains (a panel per channel): say so
+            pc.add_legend("chain", title="chain")
+        except (ValueError, KeyError, TypeError, AttributeError):  # a plot with no colour per chain keeps none
+            pass
         fig = pc.viz["figure"].item()
         out[key] = png_base64(fig)
         plt.close(fig)  # arviz draws through pyplot: leave a user's figure registry as it was
