@@ -324,9 +324,12 @@ class FleetFit:
 
     # ------------------------------------------------------------ tables
     def summary(self) -> pd.DataFrame:
-        """Per unit and channel: the pooled gain and offset (absolute) beside the unit fitted alone
-        (relative to its sphere reading; its absolute interval adds the sphere's ~3 %)."""
+        """Per unit and channel: the pooled gain and offset (absolute: ``gain``, the sphere's scale
+        folded in) beside the unit fitted alone (``gain_alone``: relative to its campaign's sphere
+        reading; its absolute interval adds the sphere's ~3 %), and the pooled gain on that same
+        footing (``gain_vs_sphere``), so the two compare."""
         vals = self.unit_values()  # (S, U, K, C)
+        rel = self.unit_values(relative=True)
         rows = []
         for u, unit in self.units.iterrows():
             for c, ch in enumerate(self.channels):
@@ -352,6 +355,13 @@ class FleetFit:
                         f"{name}_alone": float(alone),
                         f"{name}_alone_sd": float(alone_sd),
                     }
+                    if kind == "log_gain":  # the pooled gain against the campaign's sphere, as the unit alone
+                        rlo, rmed, rhi = np.quantile(np.exp(rel[:, u, k, c]), [0.025, 0.5, 0.975])
+                        row |= {
+                            "gain_vs_sphere": float(rmed),
+                            "gain_vs_sphere_lo": float(rlo),
+                            "gain_vs_sphere_hi": float(rhi),
+                        }
                 rows.append(row)
         return pd.DataFrame(rows)
 
@@ -380,9 +390,14 @@ class FleetFit:
                 for where, kappa in zip(DIRECTIONS, np.moveaxis(excess[:, k], -1, 0), strict=False):
                     entries[f"interval inflation sqrt(kappa), {where}"] = np.sqrt(kappa)
                 entries["interval inflation of one channel"] = widening[:, k]
+            unit = {"log_gain": "log gain (relative)", "offset": "DN"}.get(kind, "relative to full scale")
             for name, v in entries.items():
                 lo, med, hi = np.quantile(v, [0.025, 0.5, 0.975])
-                rows.append({"quantity": kind, "parameter": name, "median": med, "q2.5": lo, "q97.5": hi})
+                what = (
+                    "1" if name.startswith("interval inflation") else unit + (" per year" if "per year" in name else "")
+                )
+                what = unit + " per sqrt(year)" if "sqrt year" in name else what
+                rows.append({"quantity": kind, "parameter": name, "unit": what, "median": med, "q2.5": lo, "q97.5": hi})
         if "sphere_log_scale" in d:
             s = self._flat("sphere_log_scale") * scale[0]
             for j in range(s.shape[1]):

@@ -58,10 +58,26 @@ def write_fleet_report(fleet: FleetFit, out: str | os.PathLike) -> Path:
 
 
 def _unit_table(fleet: FleetFit) -> pd.DataFrame:
+    """Per unit: the gain with the fleet and alone on the same footing (against the campaign's sphere
+    reading), the absolute gain (the sphere's scale folded in), and the offsets, every column labelled."""
     s = fleet.summary()
-    cols = ["camera", "campaign", "channel", "gain", "gain_lo", "gain_hi", "gain_alone", "gain_alone_sd"]
-    cols += ["offset", "offset_lo", "offset_hi", "offset_alone", "offset_alone_sd"]
-    return s[cols]
+    names = {
+        "camera": "camera",
+        "campaign": "campaign",
+        "channel": "channel",
+        "gain_vs_sphere": "gain vs sphere, with the fleet",
+        "gain_vs_sphere_lo": "2.5 %",
+        "gain_vs_sphere_hi": "97.5 %",
+        "gain_alone": "gain vs sphere, alone",
+        "gain_alone_sd": "sd",
+        "gain": "gain, absolute (sphere's scale folded in)",
+        "gain_lo": "2.5 % ",
+        "gain_hi": "97.5 % ",
+        "offset": "offset DN, with the fleet",
+        "offset_alone": "offset DN, alone",
+        "offset_alone_sd": "sd ",
+    }
+    return s[[c for c in names if c in s]].rename(columns=names)
 
 
 def _last_units(fleet: FleetFit) -> list[int]:
