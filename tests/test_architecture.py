@@ -31,3 +31,19 @@ def test_every_component_declares_its_section_sites_and_quantities():
         assert c.__doc__ and c.sites is not None and c.reported is not None, c
     for e in EFFECTS:
         e.spec_class()  # every effect's section has defaults (the effect switched off or automatic)
+
+
+def test_the_public_names_are_listed_once_and_all_resolve():
+    """``bayescal.__all__`` (the lazy table) and the eager imports static analysers read name the same
+    objects, and every public name resolves to an object defined where the table says."""
+    tree = ast.parse((PACKAGE / "__init__.py").read_text())
+    eager = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and getattr(node.test, "id", "") == "TYPE_CHECKING":
+            for imp in node.body:
+                if isinstance(imp, ast.ImportFrom):
+                    eager |= {a.name: imp.module for a in imp.names}
+    lazy = {k: v for k, v in bayescal._LAZY.items()}  # noqa: SLF001 - the table under test
+    assert eager == lazy
+    for name in bayescal.__all__:
+        assert getattr(bayescal, name) is not None, name

@@ -1,6 +1,6 @@
 """Leave-one-setting-out predictive check: do the other rows predict each setting's rows?
 
-The per-row checks of :mod:`bayescal.misfit` look at residuals from a fit to
+The per-row checks of :mod:`bayescal.fitting.misfit` look at residuals from a fit to
 *all* rows, where a flexible model can share a discrepancy out among its
 parameters (a dark level that drifted between the bright and the dark
 measurements is split between the offsets and the excess scatter, and no

@@ -311,7 +311,7 @@ def _check_outliers(model: CalibrationModel, rows: dict, diag: Diagnostics) -> D
 
 
 def misfit_of(model: CalibrationModel, rows: dict, excess_dn: np.ndarray | None) -> tuple[list[str], dict]:
-    """The misfit checks (:mod:`bayescal.misfit`) of one fit: ``rows`` from :func:`row_summaries`,
+    """The misfit checks (:mod:`bayescal.fitting.misfit`) of one fit: ``rows`` from :func:`row_summaries`,
     ``excess_dn`` the draws of the excess scatter in DN (None when not modelled)."""
     data, scale, settings = model.data, model.layout.dn_scale, model.spec.inference
     floor_var = np.asarray(model.parts.noise.nominal_pixel_variance(data, rows["signal"])) / np.asarray(data.n_avg)
@@ -337,7 +337,7 @@ def _check_misfit(model: CalibrationModel, rows: dict, post: dict, diag: Diagnos
 
 
 def _check_holdout(model: CalibrationModel, program, mode, seed: int, diag: Diagnostics) -> Diagnostics:
-    """Leave each setting's rows out in turn: do the other rows predict them? (:mod:`bayescal.holdout`)"""
+    """Leave each setting's rows out in turn: do the other rows predict them? (:mod:`bayescal.fitting.holdout`)"""
     return diag.with_check("holdout", *holdout_checks(model, program, mode, model.spec.inference.misfit_group_z, seed))
 
 

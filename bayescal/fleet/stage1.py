@@ -48,8 +48,6 @@ class UnitFits:
         Per unit, kind and channel: the likelihood's centre.
     cov : array (U, K*C, K*C)
         Its covariance (kind-major order).
-    posterior_sd : array (U, K, C)
-        The stage-one posterior sd (before the prior is divided out).
     diagnostics : pandas.DataFrame
         Per unit: ``camera``, ``campaign``, ``rows``, ``ok`` (the unit's own fit passed every
         check), ``converged`` (its posterior was computed correctly: MAP, R-hat, ESS,
@@ -61,7 +59,6 @@ class UnitFits:
     channels: tuple[str, ...]
     mean: np.ndarray
     cov: np.ndarray
-    posterior_sd: np.ndarray
     diagnostics: object
     backend: str
     _batches: tuple[tuple[FitBatch, int], ...]
@@ -123,7 +120,7 @@ def fit_units(
             )
     n_eta = spec.response.order - 1
     kinds = QUANTITIES + tuple(f"eta{k + 1}" for k in range(n_eta))
-    means, covs, sds, rows = [], [], [], []
+    means, covs, rows = [], [], []
     for u, unit in enumerate(units):
         batch, i = batches[u]
         phys = batch.physical(i)
@@ -131,7 +128,6 @@ def fit_units(
         mean, cov = _likelihood(vec, spec.response.nonlinearity_prior_sd, n_eta)
         means.append(mean)
         covs.append(cov)
-        sds.append(vec.std(axis=0))
         diag = batch.diagnostics.iloc[i]
         rows.append(
             {
@@ -150,7 +146,6 @@ def fit_units(
         channels=channels,
         mean=np.stack(means),
         cov=np.stack(covs),
-        posterior_sd=np.stack(sds),
         diagnostics=pd.DataFrame(rows),
         backend=backend,
         _batches=tuple(batches),

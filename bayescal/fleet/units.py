@@ -75,10 +75,6 @@ class FleetTable:
         """The first campaign's date: time 0 of the drift model."""
         return self.campaigns[0] if self.campaigns else None
 
-    def units_of(self, camera: str) -> list[Unit]:
-        """A camera's units in date order."""
-        return [u for u in self.units if u.camera == camera]
-
 
 def load_fleet_table(path: str | os.PathLike) -> FleetTable:
     """Read a fleet table (CSV or Parquet) with ``camera`` and optional ``campaign`` columns.

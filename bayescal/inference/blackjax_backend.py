@@ -7,7 +7,7 @@ differ only in their NUTS and adaptation code: BlackJAX's Stan-style window adap
 multinomial NUTS.  One chain is one jitted program (warmup and draws) built once per
 model structure, with the data as an argument; chains run on a thread pool.  This module
 is the whole backend: it registers itself under ``blackjax`` when imported
-(:mod:`bayescal.backends`).  ``benchmarks/fit_speed.py`` runs it beside numpyro's NUTS.
+(:mod:`bayescal.inference.registry`).  ``benchmarks/fit_speed.py`` runs it beside numpyro's NUTS.
 """
 
 from __future__ import annotations

@@ -48,8 +48,6 @@ class RegressionPosterior:
     mean, sd : ndarray (p,)
     sigma : float
         The noise sd the posterior is conditioned on.
-    lsq_coef, lsq_se : ndarray (p,)
-        The least-squares optimum and its standard errors (the Laplace view).
     divergences : int
     max_rhat, min_ess_bulk : float
     """
@@ -58,8 +56,6 @@ class RegressionPosterior:
     mean: np.ndarray
     sd: np.ndarray
     sigma: float
-    lsq_coef: np.ndarray
-    lsq_se: np.ndarray
     divergences: int
     max_rhat: float
     min_ess_bulk: float
@@ -129,8 +125,6 @@ def regression_posterior(
         mean=out.z.mean(axis=(0, 1)),
         sd=out.z.reshape(-1, out.z.shape[-1]).std(axis=0, ddof=1),
         sigma=s,
-        lsq_coef=lsq.coef,
-        lsq_se=lsq.se,
         divergences=int(out.diverging.sum()),
         max_rhat=float(np.max(az.rhat(ds)["beta"])),
         min_ess_bulk=float(np.min(az.ess(ds, method="bulk")["beta"])),

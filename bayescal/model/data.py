@@ -57,7 +57,6 @@ class Layout:
     tdi_values: tuple[float, ...]  # measured with illumination
     lit_gain_values: tuple[float, ...]  # measured with illumination
     levels: tuple[str, ...]
-    level_stimulus: tuple[float, ...]
     x_scale: float
     t_scale: float
     dn_scale: float
@@ -199,7 +198,6 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
         tdi_values=stages,
         lit_gain_values=lit_gains,
         levels=levels,
-        level_stimulus=tuple(float(v) for v in lit["stimulus"]),
         x_scale=x_scale,
         t_scale=t_scale,
         dn_scale=dn_scale,

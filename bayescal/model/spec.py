@@ -68,11 +68,11 @@ class InferenceSpec:
     draw with no gain in ESS on the seed 000 model).
 
     ``misfit_*``: when the model is judged not to fit its data
-    (:mod:`bayescal.misfit`): excess scatter over this many noise floors,
+    (:mod:`bayescal.fitting.misfit`): excess scatter over this many noise floors,
     a group of rows whose residuals sum to more than ``misfit_group_z``
     sds, residual runs along the signal below ``misfit_runs_z`` (0 turns a
     check off).  ``holdout_check``: leave each setting's rows out in turn and
-    compare them with what the other rows predict (:mod:`bayescal.holdout`;
+    compare them with what the other rows predict (:mod:`bayescal.fitting.holdout`;
     one warm Laplace refit per setting group, run by ``fit``).
 
     ``retry_target_accept``: a NUTS run with divergent transitions is run

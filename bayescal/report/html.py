@@ -354,8 +354,8 @@ def _partly_clipped(cal: Calibration, channel: str, stimulus, setting, prnu_boun
 
 
 def _fig_misfit(misfit: dict | None, holdout: dict | None = None) -> str:
-    """The misfit checks (:mod:`bayescal.misfit`): residual sums per group of rows, each setting's rows
-    left out and predicted by the rest (:mod:`bayescal.holdout`), and the excess scatter."""
+    """The misfit checks (:mod:`bayescal.fitting.misfit`): residual sums per group of rows, each setting's rows
+    left out and predicted by the rest (:mod:`bayescal.fitting.holdout`), and the excess scatter."""
     fig, (ax, hx, bx) = subplots(1, 3, figsize=(13, 3.6), gridspec_kw={"width_ratios": [4, 2, 1]})
     limits = (misfit or {}).get("thresholds", {"excess_ratio": 10.0, "group_z": 4.0})
     zmax, rmax = limits["group_z"], limits["excess_ratio"]
