@@ -94,7 +94,7 @@ class PixelMapper(NamedTuple):
     """One channel's fitted model as arrays: the argument of the compiled streaming pass."""
 
     estimator: np.ndarray  # (P, S): theta_hat = estimator @ means (weighted least squares)
-    stat_weights: np.ndarray  # (S,): (n_s - 1) / v_s, the noisy-pixel statistic's weights (see _noise_reference)
+    stat_weights: np.ndarray  # (S,): (n_s - 1) / v_s, the noisy-pixel statistic's weights (see _rounding_factor)
     noise: np.ndarray  # NoiseMixture.constants()
     components: tuple  # (normal, defect) population components, diagonalised against the design
     log_weights: np.ndarray  # (2,)
@@ -160,12 +160,11 @@ def _robust_variance(var: np.ndarray, frames: int, keep: float = 0.995) -> float
 
 
 def _stack_variances(
-    variances: np.ndarray, frames: np.ndarray, rounds: int = 3, reference=None
-) -> tuple[np.ndarray, NoiseMixture]:
-    """Each stack's temporal variance for a normal pixel, and the noisy-pixel mixture.
-
-    ``reference(var)`` gives the variance each stack's pixels are judged against (default: the
-    channel's, ``var``; see :func:`_noise_reference`).
+    variances: np.ndarray, frames: np.ndarray, rounds: int = 3, means: np.ndarray | None = None
+) -> tuple[np.ndarray, NoiseMixture, np.ndarray]:
+    """Each stack's temporal variance for a normal pixel, the noisy-pixel mixture, and each stack's
+    factor on its variance for the noisy-pixel test (1; with ``means``, above 1 on quantisation-limited
+    stacks: :func:`_rounding_factor`, found once from the first estimate).
 
     Starts from the trimmed estimate, then alternates: fit the noisy-pixel
     mixture, and take each stack's variance as the mean ``s^2`` weighted by
@@ -176,23 +175,24 @@ def _stack_variances(
     """
     var = np.array([_robust_variance(variances[s], frames[s]) for s in range(len(frames))])
     dof = float(np.sum(frames - 1))
-    judge = reference or (lambda v: v)
+    factor = np.ones(len(frames)) if means is None else _rounding_factor(means, var)
     for _ in range(rounds):
-        stat = np.sum(((frames - 1) / judge(var))[:, None] * variances, axis=0)
+        stat = np.sum(((frames - 1) / (factor * var))[:, None] * variances, axis=0)
         noise = fit_noise_mixture(stat, dof)
         w = 1.0 - noise.probability(stat)
         var = variances @ w / w.sum()
-    stat = np.sum(((frames - 1) / judge(var))[:, None] * variances, axis=0)
-    return var, fit_noise_mixture(stat, dof)
+    stat = np.sum(((frames - 1) / (factor * var))[:, None] * variances, axis=0)
+    return var, fit_noise_mixture(stat, dof), factor
 
 
 #: stacks whose channel variance is below this (DN^2; noise under ~0.6 DN) are quantisation-limited
 ROUNDING_VAR_DN2 = 0.45
 
 
-def _noise_reference(means: np.ndarray, sample: int = 20_000):
-    """What a normal pixel's variance is judged against in the noisy-pixel test, per stack: the channel's
-    variance, or on a quantisation-limited stack the largest variance the rounding gives a normal pixel.
+def _rounding_factor(means: np.ndarray, var: np.ndarray, sample: int = 20_000) -> np.ndarray:
+    """Per stack, the largest variance the rounding gives a normal pixel over the channel's variance
+    (1 where the noise exceeds ~0.6 DN): what the noisy-pixel test judges a pixel against is the
+    channel's variance times it.
 
     With 0.2-0.3 DN of noise a pixel whose level sits at a half code flips between two codes and shows
     about twice the channel's variance, one at a whole code almost none (the noisy-pixel test called half
@@ -203,18 +203,14 @@ def _noise_reference(means: np.ndarray, sample: int = 20_000):
     """
     levels = means[:, :: max(1, means.shape[1] // sample)]
     half = np.linspace(0.0, 1.0, 101)
-
-    def reference(var: np.ndarray) -> np.ndarray:
-        out = var.copy()
-        for s in np.flatnonzero(var < ROUNDING_VAR_DN2):
-            lo, hi = 1e-3, 1.0
-            for _ in range(40):  # bisection: the noise whose rounded variance, over these levels, is var[s]
-                mid = 0.5 * (lo + hi)
-                lo, hi = (mid, hi) if np.mean(pixel_rounded_variance(levels[s], mid)) < var[s] else (lo, mid)
-            out[s] = max(var[s], float(np.max(pixel_rounded_variance(half, 0.5 * (lo + hi)))))
-        return out
-
-    return reference
+    factor = np.ones(len(var))
+    for s in np.flatnonzero(var < ROUNDING_VAR_DN2):
+        lo, hi = 1e-3, 1.0
+        for _ in range(40):  # bisection: the noise whose rounded variance, over these levels, is var[s]
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if np.mean(pixel_rounded_variance(levels[s], mid)) < var[s] else (lo, mid)
+        factor[s] = max(1.0, float(np.max(pixel_rounded_variance(half, 0.5 * (lo + hi)))) / var[s])
+    return factor
 
 
 #: the population's subsample is spread over at least this many bands of rows
@@ -337,8 +333,7 @@ def _fit_channel(manifest: Manifest, means: np.ndarray, variances: np.ndarray, r
     """One channel's model from its pixels' statistics (S, N)."""
     table = manifest.table
     frames = np.array([st.shape[0] for st in manifest.stacks])
-    reference = _noise_reference(means)
-    var, noise = _stack_variances(variances, frames, reference=reference)
+    var, noise, factor = _stack_variances(variances, frames, means=means)
     dark_of = {c: s for s, (c, k) in enumerate(zip(table["condition"], table["kind"], strict=True)) if k == "dark"}
     signal = np.zeros(len(frames))
     signal_se = np.zeros(len(frames))
@@ -358,7 +353,7 @@ def _fit_channel(manifest: Manifest, means: np.ndarray, variances: np.ndarray, r
     design = _design(exposures, flat_signal, var / frames, thermal)
     if np.linalg.matrix_rank(design.X) < design.X.shape[1]:
         raise SpecError("the stacks do not determine every pixel parameter (need a dark stack and a flat stack)")
-    stat = np.sum(((frames - 1) / reference(var))[:, None] * variances, axis=0)
+    stat = np.sum(((frames - 1) / (factor * var))[:, None] * variances, axis=0)
     theta_hat, _ = design.least_squares(means.T)
     population = fit_population(theta_hat, noise.phi(stat), design.covariance)
     post = pixel_posterior(theta_hat, noise.phi(stat), design.covariance, population)
@@ -366,7 +361,7 @@ def _fit_channel(manifest: Manifest, means: np.ndarray, variances: np.ndarray, r
     stacks = table[["file", "kind", "exposure_s", "condition", "gain", "temperature_c"]].copy()
     stacks["frames"] = frames
     stacks["variance"] = var
-    stacks["noise_reference"] = reference(var)
+    stacks["noise_reference"] = factor * var
     stacks["signal_dn"] = signal
     return MapModel(
         design,
