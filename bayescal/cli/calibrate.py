@@ -36,7 +36,6 @@ def run_fit(
     from bayescal.cli.progress import progress_bar, stage_reporter
     from bayescal.fitting.diagnose import fit_diagnosed
     from bayescal.inference import registry as backends
-    from bayescal.model import kinds
 
     inf = spec.inference
     if backend == "emcee":
@@ -49,7 +48,7 @@ def run_fit(
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FitFailedWarning)  # reported below, loudly
             stage = stage_reporter(quiet)
-            if diagnose and kinds.kind_of(spec) == kinds.CALIBRATION:
+            if diagnose:
                 result, found = fit_diagnosed(table, spec, backend, seed=seed, progress=tick, stage=stage)
             else:
                 result = fit(table, spec, backend, seed=seed, progress=tick, stage=stage)

@@ -11,7 +11,9 @@ from bayescal.cli.examples import cmd_examples
 from bayescal.cli.fleet import cmd_fleet, cmd_fleet_query, cmd_fleet_simulate
 from bayescal.cli.maps import cmd_maps
 from bayescal.cli.products import cmd_invert, cmd_plan, cmd_predict, cmd_scene
+from bayescal.errors import SpecError
 from bayescal.inference import registry as backends
+from bayescal.io import checks  # light: numpy and pandas are imported on use
 
 SEED_HELP = "seed of every random number (default 0): the same seed gives the same result"
 
@@ -230,30 +232,21 @@ def _checked(check):
     """An argument type from a check of :mod:`bayescal.io.checks` (its message becomes argparse's)."""
 
     def convert(text: str):
-        from bayescal.errors import SpecError
-
         try:
             return check(text)
         except SpecError as exc:  # "value = '0'; expected ..." reads "argument --n-avg: '0'; expected ..."
             message = str(exc).removeprefix("value = ").removeprefix("value ")
             raise argparse.ArgumentTypeError(message) from None
 
-    convert.__name__ = check.__name__
     return convert
 
 
-def _checks():
-    from bayescal.io import checks
-
-    return checks
-
-
-positive = _checked(lambda t: _checks().number(t, "value", positive=True))
-non_negative = _checked(lambda t: _checks().number(t, "value", minimum=0.0))
-positive_int = _checked(lambda t: _checks().count(t, "value"))
-seed = _checked(lambda t: _checks().count(t, "value", minimum=0))
-probability = _checked(lambda t: _checks().probability(t, "value"))
-iso_date = _checked(lambda t: _checks().date(t, "value").date().isoformat())
+positive = _checked(lambda t: checks.number(t, "value", positive=True))
+non_negative = _checked(lambda t: checks.number(t, "value", minimum=0.0))
+positive_int = _checked(lambda t: checks.count(t, "value"))
+seed = _checked(lambda t: checks.count(t, "value", minimum=0))
+probability = _checked(lambda t: checks.probability(t, "value"))
+iso_date = _checked(lambda t: checks.date(t, "value").date().isoformat())
 
 
 def positives(text: str) -> list[float]:

@@ -60,10 +60,11 @@ def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
     lit = frame["stimulus"] > 0
     out: dict[str, dict] = {}
     r, d, s = spec.response, spec.dark, spec.sphere
-    if r.order >= 2 and frame.loc[lit, "gain"].nunique() > 1:
-        other = "output" if r.nonlinearity_domain == "charge" else "charge"
+    domain = other_domain(spec, table)
+    if domain is not None:
+        other = domain["response"]["nonlinearity_domain"]
         where = "after the gain" if other == "output" else "in the charge, before the gain"
-        out[f"nonlinearity of the {other} ({where})"] = {"response": {"nonlinearity_domain": other}}
+        out[f"nonlinearity of the {other} ({where})"] = domain
     if r.order < 4:
         out[f"response order {r.order + 1} (a roll-off near full scale)"] = {"response": {"order": r.order + 1}}
     drifting = d.drift is True or d.drift == "order" or (d.drift == "auto" and "time_s" in frame)
@@ -324,30 +325,28 @@ def fit_diagnosed(
     """:func:`~bayescal.fitting.fit.fit`, and when the fit does not describe its data, :func:`diagnose`:
     the backend then fits the spec the search found.  Returns the final fit (its diagnostics carry
     the diagnosis) and the diagnosis (None when the first fit passed, or failed in its sampler)."""
-    domain, laplace = None, None
-    if backend != "lsq" and kinds_calibration(spec):
-        if stage is not None and other_domain(spec, table) is not None:
-            stage("where the nonlinearity arises: charge or output, by PSIS-LOO (Laplace)")
-        spec, domain, laplace = decide_domain(table, spec, seed)
-    first = (
-        laplace
-        if backend == "laplace" and laplace is not None
-        else fit(table, spec, backend, seed=seed, stage=stage, **kw)
-    )
+    if backend == "lsq" or not kinds_calibration(spec):  # nothing to diagnose: the baseline, another kind
+        return fit(table, spec, backend, seed=seed, stage=stage, **kw), None
+    if stage is not None and other_domain(spec, table) is not None:
+        stage("where the nonlinearity arises: charge or output, by PSIS-LOO (Laplace)")
+    spec, domain, laplace = decide_domain(table, spec, seed)
+    if laplace is None and backend == "laplace":
+        laplace = fit(table, spec, backend, seed=seed, stage=stage, **kw)
+    first = laplace if backend == "laplace" else fit(table, spec, backend, seed=seed, stage=stage, **kw)
     if domain is not None:
         first = replace(first, diagnostics=first.diagnostics.with_check("domain", [], domain))
-    if first.ok or backend == "lsq" or not _misfit_only(first):
+    if first.ok or not _misfit_only(first):
         return first, None
     if stage is not None:
         stage("the fit does not describe its data: trying what the library has (Laplace, PSIS-LOO)")
-    found = diagnose(table, spec, seed, base=first if backend == "laplace" else None)
+    found = diagnose(table, spec, seed, base=laplace)  # the Laplace fit of this spec, when one was made
     final = first
     if found.adopted:
         if stage is not None:
             stage(f"refitting with {' and '.join(found.adopted)}")
         final = fit(table, found.spec, backend, seed=seed, **kw)
     diag = final.diagnostics.with_check("diagnosis", [], found.to_dict())
-    if found.adopted and final.ok and any(a.startswith("response order") for a in found.adopted):
+    if found.adopted and final.ok and "order" in found.changes().get("response", {}):
         diag = diag.with_check("range", *range_check(table, found.spec, final, seed))
     if not found.adopted or not final.ok:
         problem = (

@@ -172,9 +172,10 @@ class Calibration:
                 )
             verify_output(path, ("fit",), needs=("posterior.nc",), verb="a calibration's reader")
             path = path / "posterior.nc"
+        elif path.is_file():  # a posterior.nc named directly: its folder, if any, is checked once here
+            verify_output(path, ("fit",), verb="a calibration's reader")
         if not path.is_file():
             raise PosteriorError(f"no posterior at {path}; run `bayescal fit ... --out DIR` first")
-        verify_output(path, ("fit",), verb="a calibration's reader")
         try:
             dt = az.from_netcdf(path)
         except Exception as exc:  # h5py/xarray raise many types for truncated or foreign files
