@@ -23,14 +23,6 @@ SPEC = str(MODELS / "seed000_bayer.toml")
 
 
 @pytest.fixture(scope="module")
-def good_csv(tmp_path_factory, seed000):
-    spec, design = seed000
-    path = tmp_path_factory.mktemp("data") / "good.csv"
-    bc.simulate(spec, design, seed=3).table.write_csv(path)
-    return path
-
-
-@pytest.fixture(scope="module")
 def fit_dir(tmp_path_factory, good_csv):
     out = tmp_path_factory.mktemp("fits") / "fit"
     assert main(["fit", str(good_csv), "--model", SPEC, "--backend", "laplace", "--out", str(out)]) == 0

@@ -8,7 +8,6 @@ import sys
 
 import pytest
 
-import bayescal as bc
 from bayescal.cli import main
 from bayescal.io.outputs import MARKER, verify_output
 from tests.conftest import MODELS
@@ -30,14 +29,6 @@ sys.exit(main(sys.argv[2:]))
 """
 
 
-@pytest.fixture(scope="module")
-def table(tmp_path_factory, seed000):
-    spec, design = seed000
-    path = tmp_path_factory.mktemp("data") / "good.csv"
-    bc.simulate(spec, design, seed=4).table.write_csv(path)
-    return path
-
-
 def _run_id(folder):
     return json.loads((folder / MARKER).read_text())["run_id"]
 
@@ -51,11 +42,11 @@ def _run_id(folder):
         ("cleaned", True),  # the last moment of writing; the command is about to print and exit
     ],
 )
-def test_ctrl_c_leaves_one_whole_output_and_says_which(tmp_path, table, stage, replaced):
+def test_ctrl_c_leaves_one_whole_output_and_says_which(tmp_path, good_csv, stage, replaced):
     out = tmp_path / "fit"
-    assert main(["fit", str(table), "--model", SPEC, "--backend", "lsq", "--out", str(out), "--quiet"]) == 0
+    assert main(["fit", str(good_csv), "--model", SPEC, "--backend", "lsq", "--out", str(out), "--quiet"]) == 0
     old = _run_id(out)
-    cmd = [sys.executable, "-c", SCRIPT, stage, "fit", str(table), "--model", SPEC, "--backend", "lsq"]
+    cmd = [sys.executable, "-c", SCRIPT, stage, "fit", str(good_csv), "--model", SPEC, "--backend", "lsq"]
     proc = subprocess.run(
         cmd + ["--out", str(out), "--quiet"],
         capture_output=True,
