@@ -8,6 +8,7 @@ copies them out).
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass
 from importlib.resources import files
