@@ -44,6 +44,6 @@ def cmd_examples(args) -> int:
 
 
 def _design_spec(path: Path) -> str | None:
-    import tomllib
+    from bayescal.io.toml import read_toml
 
-    return tomllib.loads(path.read_text(encoding="utf-8")).get("spec")
+    return read_toml(path, "design (TOML)").get("spec")

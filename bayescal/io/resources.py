@@ -59,11 +59,11 @@ def _about(path: Path) -> str:
     return ""
 
 
-def examples() -> list[Example]:
-    """Every shipped spec, design and data file, by name."""
-    return [
-        Example(p.stem, _kind(p), p, _about(p)) for p in sorted(models_dir().iterdir()) if p.suffix in (".toml", ".csv")
-    ]
+@functools.cache
+def examples() -> tuple[Example, ...]:
+    """Every shipped spec, design and data file, by name (read once per process)."""
+    files = sorted(models_dir().iterdir())
+    return tuple(Example(p.stem, _kind(p), p, _about(p)) for p in files if p.suffix in (".toml", ".csv"))
 
 
 def example_path(name: str | os.PathLike, kind: str) -> Path:
