@@ -61,7 +61,11 @@ def build() -> argparse.ArgumentParser:
     pr.set_defaults(func=cmd_predict)
     iv = sub.add_parser("invert", help="radiance posterior of DN values or an image (median and 95 %% interval)")
     iv.add_argument("posterior", help="fit directory or its posterior.nc")
-    iv.add_argument("image", nargs="?", help="TIFF, PNG or NPY image")
+    iv.add_argument(
+        "image",
+        nargs="*",
+        help="TIFF, PNG or NPY image; several (or a quoted glob) invert a survey: one folder per frame under --out",
+    )
     iv.add_argument("--dn", type=floats, help="DN values instead of an image (comma list)")
     setting_args(iv, required=False)
     image_args(iv, channel_help="channel of a single-channel image or of --dn values")
@@ -69,6 +73,11 @@ def build() -> argparse.ArgumentParser:
     iv.add_argument(
         "--maps",
         help="per-pixel maps directory (from `bayescal maps`): correct every pixel before inverting",
+    )
+    iv.add_argument(
+        "--scheduler",
+        help="dask.distributed scheduler address (tcp://host:8786): invert the frames on its workers, "
+        "which must see the same files",
     )
     iv.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     iv.set_defaults(func=cmd_invert)

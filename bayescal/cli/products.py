@@ -51,27 +51,35 @@ def cmd_invert(args) -> int:
 
     from bayescal.errors import SpecError
     from bayescal.io.files import write_text_atomic
-    from bayescal.io.outputs import check_output_dir
     from bayescal.posterior.calibration import Calibration
-    from bayescal.prediction.images import invert_image, read_image, write_radiance_maps
+    from bayescal.prediction.frames import expand_frames
     from bayescal.prediction.invert import invert
 
-    if args.maps is None and (args.image is None) == (args.dn is None):
-        raise SpecError("give an IMAGE or --dn values (one of them)")
+    images = expand_frames(args.image or [])
+    if args.maps is None and bool(images) == (args.dn is not None):
+        raise SpecError("give an IMAGE (or several) or --dn values (one of them)")
     if args.dn is not None and not args.channel:
         raise SpecError("--dn needs --channel")
-    if args.image is not None and not args.out:
+    if images and not args.out:
         raise SpecError("inverting an image needs --out DIR")
-    image = read_image(args.image) if args.image is not None else None  # checked before the posterior is read
+    if args.maps is not None and len(images) > 1:
+        raise SpecError("--maps corrects one IMAGE at a time")
+    if args.scheduler is not None and (args.maps is not None or args.dn is not None):
+        raise SpecError("--scheduler inverts image frames; it does not apply to --maps or --dn")
+    survey = len(images) > 1 or args.scheduler is not None
+    image = None
+    if images and not survey:  # one image: checked before the posterior is read
+        from bayescal.io.files import read_image
+
+        image = read_image(images[0])
     cal = Calibration.load(args.posterior)
-    if image is not None:
+    if image is not None and getattr(cal, "full_scale", None):
         from bayescal.io import checks
 
-        if getattr(cal, "full_scale", None):
-            checks.within_bits(image, cal.full_scale, str(args.image))
+        checks.within_bits(image, cal.full_scale, str(images[0]))
     setting = setting_of(args, cal)
     if args.maps is not None:
-        return _invert_with_maps(args, cal, setting, image)
+        return _invert_with_maps(args, cal, setting, images[0] if images else None, image)
     if args.dn is not None:
         res = invert(cal, np.asarray(args.dn), args.channel, setting, n_avg=args.n_avg, seed=args.seed)
         table = res.to_frame()
@@ -80,33 +88,63 @@ def cmd_invert(args) -> int:
         if args.out:
             write_text_atomic(args.out, table.to_csv(index=False, float_format="%.10g"))
         return 0
-    check_output_dir(args.out, "radiance")
-    from bayescal.cli.progress import progress_bar
+    return _invert_images(args, cal, setting, images, image)
 
-    channels = args.channels.split(",") if args.channels else None
-    with progress_bar(1, "inverting", quiet=False):
-        ds = invert_image(
-            cal,
-            image,
-            setting,
+
+def _invert_images(args, cal, setting, images, image) -> int:
+    """One image into ``--out``, or a survey's frames into ``--out/<frame>/`` (here, or on a Dask cluster)."""
+    from bayescal.cli.progress import progress_bar
+    from bayescal.prediction.frames import FrameJob, frame_outputs, invert_frame, invert_frames
+
+    survey = image is None
+    outs = frame_outputs(images, args.out) if survey else [args.out]
+    jobs = [
+        FrameJob(
+            posterior=str(args.posterior),
+            image=str(path),
+            out=str(out),
+            exposure_s=setting.exposure_s,
+            gain=setting.gain,
+            tdi_stages=setting.tdi_stages,
+            temperature_c=setting.temperature_c,
             cfa=args.cfa,
             channel=args.channel,
-            channels=channels,
+            channels=tuple(args.channels.split(",")) if args.channels else None,
             n_avg=args.n_avg,
             seed=args.seed,
         )
-    ds.attrs["image"] = str(args.image)
-    out = write_radiance_maps(ds, args.out)
-    a = ds.attrs
+        for path, out in zip(images, outs, strict=True)
+    ]
+    if not survey:
+        from bayescal.io.outputs import check_output_dir
+        from bayescal.prediction.tables import persist_tables, restore_tables
+
+        check_output_dir(args.out, "radiance")
+        restore_tables(cal)
+        with progress_bar(1, "inverting", quiet=False):
+            r = invert_frame(jobs[0], cal, image)
+        persist_tables(cal)
+        print(
+            f"inverted {r['pixels']} pixels of {r['image']}: {r['clipped']} clipped (lower bound only), "
+            f"{r['below_dark']} at/below dark (upper bound only), {r['extrapolated']} beyond the calibrated range"
+        )
+        written = sorted(p.name for p in Path(args.out).iterdir() if not p.name.startswith("."))
+        print(f"wrote {args.out}/: " + ", ".join(written))
+        return 0
+    where = f"the workers of {args.scheduler}" if args.scheduler else "this machine"
+    print(f"inverting {len(jobs)} frames on {where} into {args.out}/<frame>/", file=sys.stderr)
+    with progress_bar(len(jobs), "frames", quiet=False) as tick:
+        results = invert_frames(cal, jobs, scheduler=args.scheduler, tick=tick)
+    total = {k: sum(r[k] for r in results) for k in ("pixels", "clipped", "below_dark", "extrapolated")}
     print(
-        f"inverted {image.size} pixels of {args.image}: {a['n_saturated']} clipped (lower bound only), "
-        f"{a['n_below_dark']} at/below dark (upper bound only), {a['n_extrapolated']} beyond the calibrated range"
+        f"inverted {len(results)} frames ({total['pixels']} pixels): {total['clipped']} clipped (lower bound only), "
+        f"{total['below_dark']} at/below dark (upper bound only), {total['extrapolated']} beyond the calibrated range"
     )
-    print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir() if not p.name.startswith("."))))
+    print(f"wrote {len(results)} folders under {args.out}/ (one per frame: radiance.nc, median/lower/upper/bound.tif)")
     return 0
 
 
-def _invert_with_maps(args, cal, setting, image) -> int:
+def _invert_with_maps(args, cal, setting, path, image) -> int:
     """``invert --maps``: per-pixel correction, then the channel's inversion, with every uncertainty."""
     import numpy as np
 
@@ -115,14 +153,14 @@ def _invert_with_maps(args, cal, setting, image) -> int:
     from bayescal.maps.apply import apply_maps
     from bayescal.maps.store import read_maps
 
-    if args.image is None or not args.out:
+    if path is None or not args.out:
         raise SpecError("--maps corrects an IMAGE: give the image and --out DIR")
     if args.exposure_s is None:
         raise SpecError("--maps needs the image's --exposure-s (the dark current scales with it)")
     check_output_dir(args.out, "radiance")
     maps = read_maps(args.maps)
     if image.ndim != 2:
-        raise SpecError(f"{args.image}: --maps corrects a 2-D single-channel image; got shape {image.shape}")
+        raise SpecError(f"{path}: --maps corrects a 2-D single-channel image; got shape {image.shape}")
     ds = apply_maps(
         maps,
         image,
@@ -133,12 +171,12 @@ def _invert_with_maps(args, cal, setting, image) -> int:
         setting=setting,
         temperature_c=args.temperature_c,
     )
-    ds.attrs.update(image=str(args.image), calibration=cal.source, seed=args.seed)
+    ds.attrs.update(image=str(path), calibration=cal.source, seed=args.seed)
     with staged_directory(args.out, kind="radiance") as stage:
         ds.to_netcdf(stage("radiance.nc"), engine="h5netcdf")
     finite = np.isfinite(ds["median"].to_numpy())
     print(
-        f"corrected and inverted {image.size} pixels of {args.image} with the maps of {args.maps}: "
+        f"corrected and inverted {image.size} pixels of {path} with the maps of {args.maps}: "
         f"{ds.attrs['n_defective']} defective pixels masked; median relative interval half-width "
         f"{np.nanmedian((ds['upper'] - ds['lower']).to_numpy()[finite] / 2 / ds['median'].to_numpy()[finite]):.2%}"
     )

@@ -368,6 +368,7 @@ def record_file(tmp: Path, target: Path) -> bool:
     if target.exists() and target.name not in files:
         raise OutputError(f"refusing to overwrite {target}: bayescal did not write it (move it first)")
     files[target.name] = _entry(tmp, True)
+    os.chmod(tmp, 0o666 & ~_umask())  # a temporary file is private; the output gets the usual permissions
     with interrupts_held():
         os.replace(tmp, target)
         _write_marker(directory, {**marker, "files": files})

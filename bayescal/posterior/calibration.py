@@ -138,6 +138,8 @@ class Calibration:
     factors: tuple[FactorTerm, ...] = ()  # factors on the effective stimulus: settings, effects (empty: exact)
     charge_nonlinearity: bool = False  # the nonlinearity is the charge's (before the gain), not the output's
     dark_glow: np.ndarray | None = None  # (S, C) amplifier glow, DN/s^2 at the reference gain; None: not modelled
+    #: inversion tables computed from these draws (:mod:`bayescal.prediction.tables`); a cache, not data
+    tables: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     # ------------------------------------------------------------------ build
     @classmethod

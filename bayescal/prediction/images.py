@@ -21,7 +21,8 @@ from bayescal.io.cfa import CFA_PATTERNS, cfa_cells, channel_map
 from bayescal.io.files import read_image
 from bayescal.io.outputs import staged_directory
 from bayescal.posterior.calibration import Calibration, Setting
-from bayescal.prediction.invert import BOUND_NAMES, inversion_lut, invert
+from bayescal.prediction.invert import BOUND_NAMES, invert
+from bayescal.prediction.tables import gather
 
 __all__ = ["read_image", "channel_map", "channel_views", "invert_image", "write_radiance_maps", "CFA_PATTERNS"]
 
@@ -41,9 +42,11 @@ def invert_image(
 ) -> xr.Dataset:
     """Radiance maps (median, lower, upper as float32; bound, extrapolated flags) of an image.
 
-    Integer images: each channel's posterior is computed once per distinct DN
-    value over all its pixels and gathered (Bayer cells as strided views, no
-    per-pixel masks).
+    Integer images: each channel's posterior is computed once per DN value and
+    kept on the calibration (:mod:`bayescal.prediction.tables`); the pixels
+    are gathered from it in one threaded pass, so a survey's later frames
+    cost only the gather.  The maps of an integer image are views of one
+    packed record array (float32 median, lower, upper; int8 flags).
 
     Exactly one of ``cfa`` (2-D Bayer mosaic), ``channel`` (2-D single
     channel) or ``channels`` (3-D ``(H, W, C)`` stack, one name per plane)
@@ -53,34 +56,26 @@ def invert_image(
     views = channel_views(image, cfa=cfa, channel=channel, channels=channels)
     if prnu is None:
         prnu = cal.prnu if n_avg == 1 else 0.0
-    shape = image.shape
-    out = {k: np.empty(shape, np.float32) for k in ("median", "lower", "upper")}  # every pixel is assigned
-    bound = np.zeros(shape, np.int8)
-    extrap = np.zeros(shape, bool)
-    integer = np.issubdtype(image.dtype, np.integer)
-    if integer and image.size and (image.min() < 0 or image.max() > cal.full_scale):
-        raise TableError(f"image DN values must lie in 0..{cal.full_scale:g} for a {cal.bits}-bit camera")
-    for name in dict.fromkeys(n for _, n in views):  # each channel's posterior once, over all its cells
-        cal.channel_index(name)  # clear error for an uncalibrated channel
-        mine = [index for index, n in views if n == name]
-        if integer:
-            present = np.unique(np.concatenate([np.flatnonzero(np.bincount(image[i].ravel())) for i in mine]))
-            lut = inversion_lut(cal, name, present, setting, n_avg=n_avg, prnu=prnu, level=level, seed=seed).astype(
-                np.float32
-            )
-            for index in mine:
-                cell = image[index]
-                for k, row in (("median", 0), ("lower", 1), ("upper", 2)):
-                    out[k][index] = np.take(lut[row], cell, mode="clip")
-                bound[index] = np.take(np.nan_to_num(lut[3]).astype(np.int8), cell, mode="clip")
-                extrap[index] = np.take(lut[4] > 0, cell, mode="clip")
-        else:
-            for index in mine:
-                res = invert(cal, image[index], name, setting, n_avg=n_avg, prnu=prnu, level=level, seed=seed)
-                for k in out:
-                    out[k][index] = getattr(res, k)
-                bound[index] = res.bound
-                extrap[index] = res.extrapolated
+    if np.issubdtype(image.dtype, np.integer):
+        if image.size and (image.min() < 0 or image.max() > cal.full_scale):
+            raise TableError(f"image DN values must lie in 0..{cal.full_scale:g} for a {cal.bits}-bit camera")
+        records, counts = gather(cal, image, views, setting, n_avg=n_avg, prnu=prnu, level=level, seed=seed)
+        out = {k: records[k] for k in ("median", "lower", "upper")}  # views of the packed records
+        bound, extrap = records["bound"], records["extrapolated"]
+    else:
+        out = {k: np.empty(image.shape, np.float32) for k in ("median", "lower", "upper")}
+        bound, extrap = np.zeros(image.shape, np.int8), np.zeros(image.shape, np.int8)
+        for index, name in views:
+            res = invert(cal, image[index], name, setting, n_avg=n_avg, prnu=prnu, level=level, seed=seed)
+            for k in out:
+                out[k][index] = getattr(res, k)
+            bound[index] = res.bound
+            extrap[index] = res.extrapolated
+        counts = {
+            "clipped": int(np.sum(bound == 1)),
+            "below_dark": int(np.sum(bound == 2)),
+            "extrapolated": int(np.sum(extrap)),
+        }
     dims = ("y", "x", "channel") if image.ndim == 3 else ("y", "x")
     ds = xr.Dataset(
         {
@@ -88,7 +83,7 @@ def invert_image(
             "lower": (dims, out["lower"], {"units": cal.unit, "long_name": f"{level:.0%} interval lower end"}),
             "upper": (dims, out["upper"], {"units": cal.unit, "long_name": f"{level:.0%} interval upper end"}),
             "bound": (dims, bound, {"flag_values": list(BOUND_NAMES), "flag_meanings": " ".join(BOUND_NAMES.values())}),
-            "extrapolated": (dims, extrap.astype(np.int8)),
+            "extrapolated": (dims, extrap),
         }
     )
     if image.ndim == 3:
@@ -105,9 +100,9 @@ def invert_image(
         credible_level=level,
         seed=seed,
         calibration=cal.source,
-        n_saturated=int(np.sum(bound == 1)),
-        n_below_dark=int(np.sum(bound == 2)),
-        n_extrapolated=int(np.sum(extrap)),
+        n_saturated=counts["clipped"],
+        n_below_dark=counts["below_dark"],
+        n_extrapolated=counts["extrapolated"],
     )
     return ds
 

@@ -27,9 +27,11 @@ Bounds
 
 Images
 ------
-For integer images the posterior is computed once per *distinct* DN value
-present (at most ``2**bits`` per channel) and gathered, so the cost per
-image does not grow with the number of posterior draws (issue 3).
+The posterior is computed once per *distinct* reading (at most ``2**bits``
+per channel for integers) and gathered, so the cost does not grow with the
+number of readings; images keep their per-DN summaries on the calibration
+(:mod:`bayescal.prediction.tables`), so a survey's later frames cost only
+the gather.
 """
 
 from __future__ import annotations
@@ -178,10 +180,11 @@ def invert(
         raise TableError(f"DN values must lie in 0..{cal.full_scale:g} for a {cal.bits}-bit camera")
     if prnu is None:
         prnu = cal.prnu if n_avg == 1 else 0.0
-    kw = dict(n_avg=n_avg, prnu=prnu, level=level, noise=noise, seed=seed)
-    if np.issubdtype(values.dtype, np.integer):
-        lut = inversion_lut(cal, channel, _present(values), setting, **kw)
-        gathered = [np.take(lut[i], values) for i in range(5)]
+    if np.issubdtype(values.dtype, np.integer):  # distinct values by bincount (linear time), then one take each
+        present = np.flatnonzero(np.bincount(values.ravel(), minlength=1))
+        lut = np.full((5, int(present.max(initial=0)) + 1), np.nan)
+        lut[:, present] = _summaries(cal, channel, present.astype(float), setting, n_avg, prnu, level, noise, seed)
+        gathered = [np.take(row, values) for row in lut]
     else:
         unique, index = np.unique(values.ravel(), return_inverse=True)
         stats = _summaries(cal, channel, unique, setting, n_avg, prnu, level, noise, seed)
@@ -199,36 +202,6 @@ def invert(
         unit=cal.unit,
         level=level,
     )
-
-
-def _present(values: np.ndarray) -> np.ndarray:
-    """Distinct values of a non-negative integer array (via bincount: linear time)."""
-    return np.flatnonzero(np.bincount(values.ravel(), minlength=1))
-
-
-def inversion_lut(
-    cal: Calibration,
-    channel: str,
-    values: np.ndarray,
-    setting: Setting,
-    *,
-    n_avg: float = 1.0,
-    prnu: float = 0.0,
-    level: float = 0.95,
-    noise: bool = True,
-    seed: int = 0,
-) -> np.ndarray:
-    """Look-up table ``(5, max(values) + 1)`` of median, lower, upper, bound, extrapolated per integer DN.
-
-    Only the distinct ``values`` are computed (NaN elsewhere); ``np.take(lut[i], image)``
-    gathers them.  The cost depends on the number of distinct values, not on the
-    number of pixels.
-    """
-    values = np.asarray(values, dtype=np.int64)
-    stats = _summaries(cal, channel, values.astype(float), setting, n_avg, prnu, level, noise, seed)
-    lut = np.full((5, int(values.max()) + 1 if values.size else 1), np.nan)
-    lut[:, values] = stats
-    return lut
 
 
 def sorted_quantiles(draws: np.ndarray, probs) -> np.ndarray:

@@ -138,3 +138,168 @@ def test_bad_prediction_inputs(calibrated, tmp_path):
         bc.plan_exposure(cal, "G", dn=4095.0, current=bc.Setting(0.004), exposures=[0.001])
     assert main(["invert", str(fitdir), "--dn", "100"]) == 2  # --dn without --channel
     assert main(["invert", str(tmp_path / "nowhere"), "--dn", "100", "--channel", "G"]) == 2
+
+
+# ------------------------------------------------------------------ per-DN tables, surveys of frames
+def _per_value(cal, image, views, setting):
+    """Each channel's pixels inverted value by value (float64), cast as the maps are."""
+    expect = {k: np.full(image.shape, np.nan, np.float32) for k in ("median", "lower", "upper")}
+    bound = np.zeros(image.shape, np.int8)
+    for index, name in views:
+        res = bc.invert(cal, image[index], name, setting)
+        for k in expect:
+            expect[k][index] = getattr(res, k)
+        bound[index] = res.bound
+    return expect, bound
+
+
+@pytest.mark.parametrize("layout", ["RGGB odd width", "GBRG", "stack", "mono"])
+def test_gathered_maps_equal_per_value_inversion(calibrated, layout):
+    from bayescal.prediction.images import channel_views
+
+    _, _, cal, _ = calibrated
+    rng = np.random.default_rng(5)
+    setting = bc.Setting(0.004, 1.0)
+    if layout == "stack":
+        image, kw = rng.integers(0, 4096, size=(37, 29, 3), dtype=np.uint16), {"channels": ["B", "G", "R"]}
+    elif layout == "mono":
+        image, kw = rng.integers(0, 4096, size=(130, 9)).astype(np.int64), {"channel": "G"}
+    else:
+        image, kw = rng.integers(0, 4096, size=(131, 47), dtype=np.uint16), {"cfa": layout.split()[0]}
+    image.flat[:3] = [4095, 4095, 0]  # clipped and dark pixels in every layout
+    ds = bc.invert_image(cal, image, setting, **kw)
+    expect, bound = _per_value(cal, image, channel_views(image, **kw), setting)
+    for k in expect:
+        np.testing.assert_array_equal(ds[k].values, expect[k])
+    np.testing.assert_array_equal(ds["bound"].values, bound)
+    assert ds.attrs["n_saturated"] == int(np.sum(bound == 1)) > 0
+    assert ds.attrs["n_below_dark"] == int(np.sum(bound == 2)) > 0
+    assert ds.attrs["n_extrapolated"] == int(ds["extrapolated"].values.astype(bool).sum())
+
+
+def test_tables_are_computed_once_and_only_for_present_values(calibrated, monkeypatch):
+    from bayescal.prediction import invert as inv
+    from bayescal.prediction.tables import TableKey, table
+
+    _, _, cal0, _ = calibrated
+    cal = bc.Calibration(**{f: getattr(cal0, f) for f in cal0.__dataclass_fields__ if f != "tables"})
+    setting = bc.Setting(0.004, 1.0)
+    image = np.random.default_rng(6).integers(300, 420, size=(40, 40), dtype=np.uint16)
+    first = bc.invert_image(cal, image, setting, channel="R")
+    key = TableKey.of("R", setting, n_avg=1.0, prnu=cal.prnu, level=0.95, noise=True, seed=0)
+    assert int(table(cal, key, [])["known"].sum()) == len(np.unique(image))  # a 16-bit camera never fills 65,536
+    monkeypatch.setattr(inv, "_summaries", lambda *a, **k: pytest.fail("the table was computed again"))
+    again = bc.invert_image(cal, image[::-1], setting, channel="R")
+    np.testing.assert_array_equal(again["median"].values, first["median"].values[::-1])
+
+
+def test_tables_kept_beside_the_posterior(calibrated, tmp_path, monkeypatch):
+    import shutil
+
+    from bayescal.io.outputs import verify_output
+    from bayescal.prediction import invert as inv
+    from bayescal.prediction import tables
+
+    _, _, _, fitdir = calibrated
+    mine = tmp_path / "fit"
+    shutil.copytree(fitdir, mine)
+    setting = bc.Setting(0.004, 1.0)
+    image = np.random.default_rng(7).integers(0, 4096, size=(20, 30), dtype=np.uint16)
+    cal = bc.Calibration.load(mine)
+    first = bc.invert_image(cal, image, setting, cfa="BGGR")
+    written = tables.persist_tables(cal)
+    assert len(written) == 3 and all(p.parent == mine for p in written)
+    assert oct(written[0].stat().st_mode & 0o777) == oct(0o666 & ~_current_umask())
+    info = verify_output(mine, ("fit",), verb="test")  # the tables are the run's own files now
+    assert {p.name for p in written} <= set(info.files)
+    assert tables.persist_tables(cal) == []  # nothing grew since
+    again = bc.Calibration.load(mine)
+    assert tables.restore_tables(again) == 3
+    monkeypatch.setattr(inv, "_summaries", lambda *a, **k: pytest.fail("a kept table was computed again"))
+    np.testing.assert_array_equal(bc.invert_image(again, image, setting, cfa="BGGR")["upper"], first["upper"])
+    monkeypatch.undo()
+    # tables of another posterior (or another bayescal) are not used
+    monkeypatch.setattr(tables, "_identity", lambda sha: {"format": 1, "posterior_sha256": "0" * 64})
+    assert tables.restore_tables(bc.Calibration.load(mine)) == 0
+
+
+def _current_umask() -> int:
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _frames(tmp_path, n=3):
+    rng = np.random.default_rng(8)
+    paths = []
+    for k in range(n):
+        paths.append(tmp_path / "survey" / f"f{k}.npy")
+        paths[-1].parent.mkdir(exist_ok=True)
+        np.save(paths[-1], rng.integers(0, 4096, size=(24, 32), dtype=np.uint16))
+    return paths
+
+
+def test_survey_of_frames_one_folder_each(calibrated, tmp_path, capsys):
+    from bayescal.io.outputs import verify_output
+
+    _, _, cal, fitdir = calibrated
+    paths = _frames(tmp_path)
+    out = tmp_path / "out"
+    args = ["invert", str(fitdir), str(tmp_path / "survey" / "f*.npy"), "--cfa", "RGGB", "--exposure-s", "0.004"]
+    assert main([*args, "--out", str(out)]) == 0
+    assert "inverted 3 frames (2304 pixels)" in capsys.readouterr().out
+    for p in paths:
+        verify_output(out / p.stem, ("radiance",), needs=("radiance.nc",), verb="test")
+        nc = xr.open_dataset(out / p.stem / "radiance.nc", engine="h5netcdf")
+        direct = bc.invert_image(cal, np.load(p), bc.Setting(0.004, 1.0), cfa="RGGB")
+        np.testing.assert_array_equal(nc["median"].values, direct["median"].values)
+        assert nc.attrs["image"] == str(p)
+    # a folder of the user's at one frame's target stops the survey before any frame is written
+    (tmp_path / "out2" / "f1").mkdir(parents=True)
+    (tmp_path / "out2" / "f1" / "notes.txt").write_text("mine")
+    assert main([*args, "--out", str(tmp_path / "out2")]) == 2
+    assert sorted(p.name for p in (tmp_path / "out2").iterdir()) == ["f1"]
+    assert (tmp_path / "out2" / "f1" / "notes.txt").read_text() == "mine"
+    # two frames with one name would write one folder
+    (tmp_path / "other").mkdir()
+    np.save(tmp_path / "other" / "f0.npy", np.load(paths[0]))
+    rc = main(
+        [
+            "invert",
+            str(fitdir),
+            str(paths[0]),
+            str(tmp_path / "other" / "f0.npy"),
+            "--cfa",
+            "RGGB",
+            "--out",
+            str(tmp_path / "out3"),
+        ]
+    )
+    assert rc == 2 and "distinct names" in capsys.readouterr().err
+    assert main([*args[:2], str(tmp_path / "survey" / "g*.npy"), "--cfa", "RGGB", "--out", str(out)]) == 2
+
+
+def test_survey_on_a_dask_cluster(calibrated, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    import shutil
+
+    from bayescal.prediction.frames import FrameJob, invert_frames
+
+    _, _, _, fitdir = calibrated
+    mine = tmp_path / "fit"
+    shutil.copytree(fitdir, mine)
+    cal = bc.Calibration.load(mine)
+    paths = _frames(tmp_path, 2)
+    jobs = [
+        FrameJob(str(mine), str(p), str(tmp_path / "out" / p.stem), 0.004, 1.0, 1.0, None, cfa="GRBG") for p in paths
+    ]
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as lc:
+        results = invert_frames(cal, jobs, scheduler=lc.scheduler_address)
+    assert [r["image"] for r in results] == [str(p) for p in paths]
+    assert len(list(mine.glob("inversion-*.npz"))) == 3  # every value computed once, before the workers start
+    for p in paths:
+        nc = xr.open_dataset(tmp_path / "out" / p.stem / "radiance.nc", engine="h5netcdf")
+        direct = bc.invert_image(cal, np.load(p), bc.Setting(0.004, 1.0), cfa="GRBG")
+        np.testing.assert_array_equal(nc["lower"].values, direct["lower"].values)
