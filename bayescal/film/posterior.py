@@ -61,9 +61,9 @@ class FilmCalibration:
         """From a fit directory's ``posterior.nc`` written by a film fit."""
         path = Path(path)
         if tree is None:
-            import arviz as az
+            import xarray as xr
 
-            tree = az.from_netcdf(path / "posterior.nc" if path.is_dir() else path)
+            tree = xr.open_datatree(path / "posterior.nc" if path.is_dir() else path)
         if tree.attrs.get("kind") != "film" or "posterior" not in tree.children:
             raise PosteriorError(f"{path} was not written by a film fit (no kind = 'film' posterior)")
         post = tree["posterior"]

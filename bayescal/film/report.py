@@ -31,9 +31,9 @@ def write_film_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None 
         summary["diagnostics"]["verdict"], summary["parameters"]  # noqa: B018 - the keys the report reads
     except (OSError, UnicodeError, ValueError, KeyError, TypeError) as exc:
         raise PosteriorError(f"{fit_dir / 'summary.json'} is missing or not a film fit's summary ({exc})") from None
-    import arviz as az
+    import xarray as xr
 
-    tree = az.from_netcdf(fit_dir / "posterior.nc")
+    tree = xr.open_datatree(fit_dir / "posterior.nc")
     cal = FilmCalibration.load(fit_dir, tree)
     frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
     params = pd.DataFrame(summary["parameters"])

@@ -16,7 +16,6 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
-import arviz as az
 import numpy as np
 import pandas as pd
 import xarray as xr
@@ -89,7 +88,9 @@ class Fit:
         names = [v for v in REPORTED if v in post]
         with warnings.catch_warnings():  # R-hat of the reference setting's factor (a constant 1) is NaN, by design
             warnings.simplefilter("ignore", RuntimeWarning)
-            table = az.summary(post[names], ci_prob=0.95, ci_kind="eti", round_to="none")
+            import arviz_stats
+
+            table = arviz_stats.summary(post[names], ci_prob=0.95, ci_kind="eti", round_to="none")
         median = _flat_stat(post[names], lambda a: np.median(a, axis=(0, 1)))
         table.insert(2, "q2.5", table.pop("eti95_lb"))
         table.insert(3, "q50", median.reindex(table.index))
@@ -245,7 +246,9 @@ def finish(model, program, draws, backend: str, seed: int, result, lsq, timings:
         warnings.filterwarnings("ignore", "Found chain dimension", UserWarning)
         chains, draws, dim = np.shape(z)
         loglik = np.asarray(program.loglik(np.asarray(z).reshape(-1, dim), model.data)).reshape(chains, draws, -1)
-        dt = az.from_dict(
+        import arviz_base
+
+        dt = arviz_base.from_dict(
             {
                 "posterior": post,
                 "log_likelihood": {"obs": loglik},

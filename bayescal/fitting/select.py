@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import warnings
 
-import arviz as az
 import numpy as np
 import pandas as pd
 from scipy import stats
@@ -70,17 +69,19 @@ def compare_specs(
     """
     if backend == "lsq":
         raise SpecError("model comparison needs a Bayesian backend (nuts, laplace or emcee)")
+    import arviz_stats
+
     trees, ok, high_k = {}, {}, {}
     for name, spec in specs.items():
         result = fit(table, spec, backend, seed=seed)
         trees[name], ok[name] = result.posterior, result.ok
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
-            loo = az.loo(result.posterior, pointwise=True)
+            loo = arviz_stats.loo(result.posterior, pointwise=True)
         high_k[name] = int(np.sum(np.asarray(loo.pareto_k) > 0.7))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        table_cmp = az.compare(trees, round_to="none")
+        table_cmp = arviz_stats.compare(trees, round_to="none")
     cols = {"elpd": "elpd_loo", "p": "p_loo", "elpd_diff": "elpd_diff", "dse": "dse", "se": "se", "weight": "weight"}
     out = table_cmp.rename(columns=cols)[[c for c in cols.values() if c in table_cmp.rename(columns=cols)]]
     out["n_high_k"] = [high_k[i] for i in out.index]

@@ -44,7 +44,7 @@ def write_calibration(
         The measured camera whose stage-one fit supplies the quantities the fleet does
         not model (default: the camera itself; for a new camera, the fleet's first).
     """
-    import arviz as az
+    import xarray as xr
 
     from bayescal.io.files import write_json_atomic
     from bayescal.io.outputs import check_output_dir, staged_directory
@@ -57,7 +57,7 @@ def write_calibration(
     path = fleet_dir / "cameras" / safe_name(source) / "posterior.nc"
     if not path.is_file():
         raise PosteriorError(f"{path} is missing; the fleet directory is incomplete (re-run `bayescal fleet`)")
-    tree = az.from_netcdf(path)
+    tree = xr.open_datatree(path)
     post = tree["posterior"].to_dataset()
     chains, draws = post.sizes["chain"], post.sizes["draw"]
     values = fleet.at(camera, date, seed=seed)  # (S, K, C)

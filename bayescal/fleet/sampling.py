@@ -458,7 +458,8 @@ def loo_of(plan: Plan, data: FleetData, draws: FleetDraws) -> dict:
     out (:mod:`.loo`), so the importance weights only move the scales; ``p_loo`` is the
     log pointwise predictive density of the draws' conditional likelihood minus ``elpd_loo``.
     """
-    import arviz as az
+    import arviz_base
+    import arviz_stats
 
     from bayescal.fleet.loo import loo_predictive
 
@@ -469,8 +470,8 @@ def loo_of(plan: Plan, data: FleetData, draws: FleetDraws) -> dict:
     if not hyper:  # nothing sampled: one set of scales for every draw
         sc, kappa = np.repeat(sc, chains * n, axis=0), np.repeat(kappa, chains * n, axis=0)
     pred = loo_predictive(plan, data, sc, kappa).reshape(chains, n, -1)
-    tree = az.from_dict({"posterior": {"dummy": np.zeros((chains, n))}, "log_likelihood": {"y": pred}})
-    loo = az.loo(tree, pointwise=True)
+    tree = arviz_base.from_dict({"posterior": {"dummy": np.zeros((chains, n))}, "log_likelihood": {"y": pred}})
+    loo = arviz_stats.loo(tree, pointwise=True)
     flat = ll.reshape(chains * n, -1)
     lppd = float(np.sum(np.logaddexp.reduce(flat, axis=0) - np.log(flat.shape[0])))
     return {

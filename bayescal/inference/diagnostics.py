@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-import arviz as az
 import numpy as np
 import xarray as xr
 
@@ -58,11 +57,13 @@ class Diagnostics:
 
 def mcmc_diagnostics(posterior: xr.Dataset, divergences: int, settings: InferenceSpec, extra=None) -> Diagnostics:
     """R-hat and ESS of every variable of ``posterior`` (dims chain, draw, ...)."""
+    import arviz_stats
+
     varying = [v for v in posterior.data_vars if float(posterior[v].std()) > 0]
     ds = posterior[varying]
-    rhat = _min_max(az.rhat(ds), np.nanmax)
-    bulk = _min_max(az.ess(ds, method="bulk"), np.nanmin)
-    tail = _min_max(az.ess(ds, method="tail"), np.nanmin)
+    rhat = _min_max(arviz_stats.rhat(ds), np.nanmax)
+    bulk = _min_max(arviz_stats.ess(ds, method="bulk"), np.nanmin)
+    tail = _min_max(arviz_stats.ess(ds, method="tail"), np.nanmin)
     problems = []
     if divergences:
         problems.append(f"{divergences} divergent transitions")

@@ -26,7 +26,7 @@ from numpyro.distributions.transforms import biject_to
 from numpyro.infer.util import constrain_fn, log_likelihood, potential_energy, unconstrain_fn
 
 from bayescal._config import computes
-from bayescal.model.assemble import CalibrationModel, numpyro_model
+from bayescal.model.assemble import CalibrationModel
 
 __all__ = ["Program", "program_for", "program_of", "clear_program_cache"]
 
@@ -93,7 +93,7 @@ class Program:
 
 def program_for(model: CalibrationModel) -> Program:
     """The cached program of ``model``'s structure (built on first use)."""
-    return program_of(numpyro_model(model.parts), model.data)
+    return program_of(model.model, model.data)
 
 
 @computes

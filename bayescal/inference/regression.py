@@ -19,7 +19,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 
-import arviz as az
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -119,13 +118,16 @@ def regression_posterior(
     program = _program(model, lsq.coef.size)
     data = (jnp.asarray(x), jnp.asarray(y), jnp.asarray(s))
     out = run_nuts(program, data, jnp.asarray(lsq.coef), cov, settings, seed)
-    ds = az.convert_to_dataset({"beta": out.z})
+    import arviz_base
+    import arviz_stats
+
+    ds = arviz_base.convert_to_dataset({"beta": out.z})
     return RegressionPosterior(
         draws=out.z,
         mean=out.z.mean(axis=(0, 1)),
         sd=out.z.reshape(-1, out.z.shape[-1]).std(axis=0, ddof=1),
         sigma=s,
         divergences=int(out.diverging.sum()),
-        max_rhat=float(np.max(az.rhat(ds)["beta"])),
-        min_ess_bulk=float(np.min(az.ess(ds, method="bulk")["beta"])),
+        max_rhat=float(np.max(arviz_stats.rhat(ds)["beta"])),
+        min_ess_bulk=float(np.min(arviz_stats.ess(ds, method="bulk")["beta"])),
     )

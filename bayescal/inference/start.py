@@ -17,6 +17,9 @@ from bayescal.model.assemble import CalibrationModel
 
 __all__ = ["initial_point"]
 
+#: the roll-off's knee (fraction of full scale) and sharpness ``p - 1`` at the start
+ROLLOFF_START = (3.0, 3.0)
+
 
 def initial_point(model: CalibrationModel, program: Program) -> jnp.ndarray:
     """Flat unconstrained starting vector for ``model``."""
@@ -42,6 +45,8 @@ def initial_point(model: CalibrationModel, program: Program) -> jnp.ndarray:
     # pooled values (deterministic here, left out below) start at their guided conditional means: w = 0
     if "excess" in values:
         values["excess"] = max(rms, 1e-6)
+    if "rolloff_knee" in values:  # a roll-off far above the data: the linear fit's basin, compressed gently
+        values["rolloff_knee"], values["rolloff_sharpness"] = ROLLOFF_START
     values = {k: v for k, v in values.items() if k in init}
     return program.unconstrain({k: jnp.asarray(v, dtype=float) for k, v in values.items()}, model.data)
 

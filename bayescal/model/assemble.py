@@ -8,7 +8,7 @@ program serves every dataset of the same shape.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -71,6 +71,12 @@ class Parts:
         """The factors on the effective stimulus besides the settings': the sphere's level errors, the effects."""
         return (self.sphere, *self.effects)
 
+    @property
+    def structure(self) -> Parts:
+        """What the compiled program depends on: these parts with what the data carry left out
+        (the nonlinearity's domain, so both domains share one compilation)."""
+        return replace(self, response=self.response.structure)
+
     def describe(self) -> list[str]:
         """Human-readable list of what the model contains."""
         return [c.describe() for c in self.components]
@@ -109,8 +115,14 @@ def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
         for factor in parts.factors:
             multiplier = multiplier * factor.sample(data)
         x = data.u * multiplier
-        row_coef = parts.response.coefficients_at(coef[data.channel], data.g_rel * gain_factor, _jnp())
-        signal = numpyro.deterministic("row_signal", parts.response.signal(row_coef, x, _jnp()))
+        row_coef = parts.response.coefficients_at(
+            coef[data.channel], data.g_rel * gain_factor, _jnp(), charge=data.charge
+        )
+        signal = parts.response.signal(row_coef, x, _jnp())
+        rolloff = parts.response.sample_rolloff()
+        if rolloff is not None:
+            signal = parts.response.compress(signal, *rolloff, _jnp())
+        signal = numpyro.deterministic("row_signal", signal)
         offset = parts.dark.sample(data)
         var_mean = parts.noise.sample(data, signal)
         var_pix = parts.noise.nominal_pixel_variance(data, signal, _jnp())
@@ -138,12 +150,12 @@ class CalibrationModel:
     @property
     def model(self) -> Callable[[ModelData], None]:
         """The numpyro model function (data is its argument)."""
-        return numpyro_model(self.parts)
+        return numpyro_model(self.parts.structure)
 
     @property
     def structure_key(self) -> tuple:
         """What determines the compiled program: components and array shapes."""
-        return (self.parts, self.layout.shape_key)
+        return (self.parts.structure, self.layout.shape_key)
 
 
 def resolve_for_table(spec: ModelSpec, table: MeasurementTable) -> ModelSpec:

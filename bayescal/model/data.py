@@ -44,6 +44,7 @@ class ModelData(NamedTuple):
     temp: np.ndarray  # temperature - dark.temperature_ref_c (degC; 0 without a temperature model)
     time: np.ndarray  # time_s / the run's duration (0 without a drift model): 0 at the start of the run
     keep: np.ndarray  # bool, the row's reading enters the likelihood (False: held out, predicted only)
+    charge: np.ndarray  # scalar: 1 where the nonlinearity is the charge's (before the gain), 0 the output's
     extra: dict = {}  # per-row inputs of the optional effects (Effect.inputs), by name
 
 
@@ -190,6 +191,7 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
         temp=np.asarray(temp, dtype=float),
         time=np.asarray(time, dtype=float),
         keep=np.ones(len(df), dtype=bool),
+        charge=np.asarray(1.0 if spec.response.nonlinearity_domain == "charge" else 0.0),
     )
     layout = Layout(
         channels=channels,

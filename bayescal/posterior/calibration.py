@@ -138,6 +138,7 @@ class Calibration:
     factors: tuple[FactorTerm, ...] = ()  # factors on the effective stimulus: settings, effects (empty: exact)
     charge_nonlinearity: bool = False  # the nonlinearity is the charge's (before the gain), not the output's
     dark_glow: np.ndarray | None = None  # (S, C) amplifier glow, DN/s^2 at the reference gain; None: not modelled
+    rolloff: np.ndarray | None = None  # (S, 2) roll-off knee (DN) and power (Response.compress); None: none
     #: inversion tables computed from these draws (:mod:`bayescal.prediction.tables`); a cache, not data
     tables: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -161,7 +162,7 @@ class Calibration:
     @classmethod
     def load(cls, path: str | os.PathLike) -> Calibration:
         """From a fit directory or its ``posterior.nc`` (spec and measurements are stored in it)."""
-        import arviz as az
+        import xarray as xr
 
         from bayescal.io.outputs import verify_output
 
@@ -179,7 +180,7 @@ class Calibration:
         if not path.is_file():
             raise PosteriorError(f"no posterior at {path}; run `bayescal fit ... --out DIR` first")
         try:
-            dt = az.from_netcdf(path)
+            dt = xr.open_datatree(path)
         except Exception as exc:  # h5py/xarray raise many types for truncated or foreign files
             raise PosteriorError(
                 f"{path} is not a readable posterior file ({type(exc).__name__}: {str(exc)[:200]}); "
@@ -247,6 +248,11 @@ class Calibration:
             factors=_factor_terms(spec, draws, frame, flat),
             charge_nonlinearity=spec.response.nonlinearity_domain == "charge",
             dark_glow=flat(draws["dark_glow_dn_s2"]) if "dark_glow_dn_s2" in draws else None,
+            rolloff=(
+                np.stack([flat(draws["rolloff_knee_dn"]), flat(draws["rolloff_power"])], axis=-1)
+                if "rolloff_knee_dn" in draws
+                else None
+            ),
         )
 
     @classmethod
@@ -384,7 +390,19 @@ class Calibration:
         (None: the reference's; it matters only for a nonlinearity of the charge)."""
         coef = self.coefficients(channel, setting, relative)
         x = np.asarray(x, dtype=float)
-        return Response.signal(coef.reshape((coef.shape[0],) + (1,) * (x.ndim - 1) + coef.shape[1:]), x)
+        signal = Response.signal(coef.reshape((coef.shape[0],) + (1,) * (x.ndim - 1) + coef.shape[1:]), x)
+        if self.rolloff is not None:
+            knee, power = (self.rolloff[:, i].reshape((-1,) + (1,) * (x.ndim - 1)) for i in (0, 1))
+            signal = Response.compress(signal, knee, power)
+        return signal
+
+    def response_signal(self, signal: np.ndarray) -> np.ndarray:
+        """The polynomial response's signal behind an output ``signal`` (DN, draws on the last axis):
+        the roll-off undone (:meth:`~bayescal.model.components.response.Response.expand`; ``inf`` past
+        its knee), or ``signal`` itself without one."""
+        if self.rolloff is None:
+            return signal
+        return Response.expand(signal, self.rolloff[:, 0], self.rolloff[:, 1])
 
     def noise_var(self, signal: np.ndarray, setting: Setting, n_avg: float = 1.0, prnu: float = 0.0) -> np.ndarray:
         """Variance (DN^2) of one reading with ``n_avg`` pixels x frames averaged

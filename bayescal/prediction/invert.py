@@ -129,7 +129,10 @@ def radiance_draws(
     signal = dn - cal.dark_dn(channel, setting)[None, :]
     if z is not None:  # the reading's own noise (its variance per draw, at the reading's signal)
         signal -= np.sqrt(cal.noise_var(signal.T, setting, n_avg, prnu).T) * z[None, :]
-    x = Response.inverse(cal.coefficients(channel, setting, relative), signal)
+    linear = cal.response_signal(signal)
+    beyond = ~np.isfinite(linear)  # past a roll-off's knee: no stimulus reads that much
+    x = Response.inverse(cal.coefficients(channel, setting, relative), np.where(beyond, 0.0, linear))
+    x[beyond] = np.inf
     x /= cal.ratio(setting, channel)[None, :]
     return x
 
@@ -183,11 +186,11 @@ def invert(
     if np.issubdtype(values.dtype, np.integer):  # distinct values by bincount (linear time), then one take each
         present = np.flatnonzero(np.bincount(values.ravel(), minlength=1))
         lut = np.full((5, int(present.max(initial=0)) + 1), np.nan)
-        lut[:, present] = _summaries(cal, channel, present.astype(float), setting, n_avg, prnu, level, noise, seed)
+        lut[:, present] = value_summaries(cal, channel, present.astype(float), setting, n_avg, prnu, level, noise, seed)
         gathered = [np.take(row, values) for row in lut]
     else:
         unique, index = np.unique(values.ravel(), return_inverse=True)
-        stats = _summaries(cal, channel, unique, setting, n_avg, prnu, level, noise, seed)
+        stats = value_summaries(cal, channel, unique, setting, n_avg, prnu, level, noise, seed)
         gathered = stats[:, index].reshape((stats.shape[0],) + values.shape)
     median, lower, upper, bound, extrap = gathered
     return Inversion(
@@ -231,7 +234,7 @@ def noise_normals(n_draws: int, seed: int) -> np.ndarray:
     return np.random.default_rng(np.random.SeedSequence([seed, 0x1D7E])).standard_normal(n_draws)
 
 
-def _summaries(cal, channel, values, setting, n_avg, prnu, level, noise, seed) -> np.ndarray:
+def value_summaries(cal, channel, values, setting, n_avg, prnu, level, noise, seed) -> np.ndarray:
     """``(5, V)``: median, lower, upper, bound code, extrapolated flag per distinct value."""
     z = noise_normals(cal.n_draws, seed) if noise else None
     tail = (1.0 - level) / 2.0

@@ -113,7 +113,7 @@ def table(cal: Calibration, key: TableKey, values: np.ndarray | None = None) -> 
     ``values=None`` computes every DN value.  Values computed before (in this
     process, or read by :func:`restore_tables`) are not computed again.
     """
-    from bayescal.prediction.invert import _summaries
+    from bayescal.prediction.invert import value_summaries
 
     store = _store(cal)
     size = int(cal.full_scale) + 1
@@ -123,7 +123,7 @@ def table(cal: Calibration, key: TableKey, values: np.ndarray | None = None) -> 
     wanted = np.arange(size) if values is None else np.unique(np.asarray(values, dtype=np.int64))
     missing = wanted[records["known"][wanted] == 0]
     if missing.size:
-        stats = _summaries(
+        stats = value_summaries(
             cal, key.channel, missing.astype(float), key.setting(), key.n_avg, key.prnu, key.level, key.noise, key.seed
         )
         new = records[missing]

@@ -110,9 +110,9 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
             "re-run `bayescal fit`"
         ) from None
     cal = Calibration.load(fit_dir)
-    import arviz as az
+    import xarray as xr
 
-    tree = az.from_netcdf(fit_dir / "posterior.nc")
+    tree = xr.open_datatree(fit_dir / "posterior.nc")
     frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
     frame = frame.rename(columns={cal.stimulus: "stimulus"})
     lsq = pd.DataFrame(summary["lsq"])

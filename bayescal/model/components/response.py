@@ -12,7 +12,7 @@ the model, physical in predictions and simulation).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -27,6 +27,12 @@ __all__ = ["Response", "ResponseSpec"]
 ETA_TAU_SD = 0.02
 #: the "normal" gain prior's sd, in units of its median: nearly flat (linear-Gaussian when the response is linear)
 NORMAL_GAIN_SD_FACTOR = 10.0
+
+
+#: prior median of the roll-off's knee, as a fraction of full scale
+ROLLOFF_KNEE_MEDIAN = 1.5
+#: prior log-sd of the roll-off's knee
+ROLLOFF_KNEE_LOG_SD = 0.5
 
 
 @dataclass(frozen=True)
@@ -63,6 +69,17 @@ class ResponseSpec:
     reference, its effective factor included) the signal is ``g S(x / g)`` and the
     coefficients are ``A_k g^(1-k)`` (:meth:`Response.at_gain`).  With one gain the two are
     the same; with a gain sweep they differ, and ``bayescal select`` compares them by LOO.
+
+    ``rolloff`` adds a smooth compression towards full scale that no polynomial of low order
+    follows (a sense node or amplifier leaving its linear range, an ADC's top codes):
+    ``S_out = S / (1 + (S / K)^p)^(1/p)`` (:meth:`Response.compress`), the same curve in DN at
+    every setting, with the knee ``K`` (DN: the level the output approaches; a signal ``S = K``
+    reads ``K / 2^(1/p)``) and the sharpness ``p`` posterior quantities.  Priors: ``K / full scale``
+    log-normal with median :data:`ROLLOFF_KNEE_MEDIAN` and log-sd :data:`ROLLOFF_KNEE_LOG_SD`
+    (a knee at full scale or above: a camera whose roll-off starts low saturates early, which
+    the window likelihood handles), ``p - 1`` log-normal with median 3 and log-sd 0.6.  Off by
+    default: the misfit diagnosis (:mod:`bayescal.fitting.diagnose`) switches it on when the
+    data ask for it.
     """
 
     order: int = 1
@@ -72,6 +89,7 @@ class ResponseSpec:
     gain_prior_log_sd: float = 2.0
     nonlinearity_prior_sd: float = 0.1
     nonlinearity_domain: Literal["output", "charge"] = "output"
+    rolloff: bool = False
 
 
 @dataclass(frozen=True)
@@ -91,6 +109,8 @@ class Response(Component):
         "eta_tau": ("nl_term",),
         "eta_w": ("channel", "nl_term"),
         "eta_mu_w": ("nl_term",),
+        "rolloff_knee": (),
+        "rolloff_sharpness": (),
     }
     reported = {
         "gain": ("channel",),
@@ -98,6 +118,8 @@ class Response(Component):
         "A_abs": ("channel", "power"),
         "A_rel": ("channel", "power"),
         "nonlinearity": ("channel", "nl_term"),
+        "rolloff_knee_dn": (),
+        "rolloff_power": (),
     }
 
     spec: ResponseSpec
@@ -117,6 +139,24 @@ class Response(Component):
         for k in range(coef.shape[-1] - 1, -1, -1):
             out = (out + coef[..., k]) * x
         return out
+
+    @staticmethod
+    def compress(signal, knee, power, xp=np):
+        """The roll-off towards full scale: ``S / (1 + (S / K)^p)^(1/p)`` for ``S >= 0`` (``S`` itself
+        below zero); monotone, linear for ``S << K``, approaching ``K`` from below."""
+        positive = signal > 0
+        ratio = xp.where(positive, signal / knee, 1.0)  # both branches finite: the gradients of each stay finite
+        factor = xp.exp(-xp.logaddexp(0.0, power * xp.log(ratio)) / power)  # (1 + ratio^p)^(-1/p), no overflow
+        return signal * xp.where(positive, factor, 1.0)
+
+    @staticmethod
+    def expand(signal, knee, power):
+        """Inverse of :meth:`compress`: ``y / (1 - (y / K)^p)^(1/p)``; ``inf`` at or above the knee
+        (no signal reaches it)."""
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            ratio = np.maximum(signal, 0.0) / knee
+            out = signal / (1.0 - ratio**power) ** (1.0 / power)
+        return np.where(ratio >= 1.0, np.inf, out)
 
     @staticmethod
     def inverse(coef: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -178,12 +218,25 @@ class Response(Component):
         powers = xp.arange(coef.shape[-1])
         return coef * xp.asarray(gain)[..., None] ** (-powers)
 
-    def coefficients_at(self, coef, gain, xp=np):
+    def coefficients_at(self, coef, gain, xp=np, charge=None):
         """The response's coefficients at effective gain ``gain``: :meth:`at_gain` for a nonlinearity
-        of the charge, ``coef`` unchanged for one of the output (or a linear response)."""
-        if self.spec.nonlinearity_domain == "charge" and self.n_terms:
+        of the charge, ``coef`` unchanged for one of the output (or a linear response).
+
+        ``charge`` (the model's data: 1 for the charge, 0 for the output) overrides the spec, so
+        both domains share one compiled program: ``A_k g^((1-k) charge)``."""
+        if not self.n_terms:
+            return coef
+        if charge is not None:
+            powers = xp.arange(coef.shape[-1])
+            return coef * xp.asarray(gain)[..., None] ** (-powers * charge)
+        if self.spec.nonlinearity_domain == "charge":
             return self.at_gain(coef, gain, xp)
         return coef
+
+    @property
+    def structure(self) -> Response:
+        """This component with the domain left to the data (:meth:`coefficients_at`'s ``charge``)."""
+        return replace(self, spec=replace(self.spec, nonlinearity_domain="output"))
 
     # ----------------------------------------------------------------- sampling
     @property
@@ -231,11 +284,24 @@ class Response(Component):
                 eta = numpyro.sample("eta", prior)
         return response_monomials(gain, eta, self.spec.order, xp=jnp)[..., 1:]
 
+    def sample_rolloff(self):
+        """The roll-off's knee (fraction of full scale) and sharpness ``p``, or None without one."""
+        if not self.spec.rolloff:
+            return None
+        import numpyro
+        import numpyro.distributions as dist
+
+        knee = numpyro.sample("rolloff_knee", dist.LogNormal(float(np.log(ROLLOFF_KNEE_MEDIAN)), ROLLOFF_KNEE_LOG_SD))
+        sharpness = numpyro.sample("rolloff_sharpness", dist.LogNormal(float(np.log(3.0)), 0.6))
+        return knee, 1.0 + sharpness
+
     # ---------------------------------------------------------------- reporting
     def describe(self) -> str:
         out = f"response: order {self.spec.order}"
         if self.n_terms:
             out += f", nonlinearity of the {self.spec.nonlinearity_domain}" + (", pooled" if self.spec.pooled else "")
+        if self.spec.rolloff:
+            out += ", soft roll-off towards full scale"
         return out
 
     def physical(self, draws, ctx) -> dict[str, np.ndarray]:
@@ -248,4 +314,7 @@ class Response(Component):
         out = {"A_rel": coef, "gain_rel": coef[..., 1]}
         if "eta" in draws:
             out["nonlinearity"] = draws["eta"]
+        if "rolloff_knee" in draws:
+            out["rolloff_knee_dn"] = draws["rolloff_knee"] * layout.dn_scale
+            out["rolloff_power"] = 1.0 + draws["rolloff_sharpness"]
         return out
