@@ -51,6 +51,7 @@ CASES = {
     "gain steps +-8 %": Departures(gain_step_error=0.08),
     "shutter offset 0.2 ms": Departures(shutter_offset_s=0.0002),
     "roll-off near full scale": Departures(rolloff=True),
+    "roll-off, tanh shape": Departures(rolloff=True, rolloff_shape="tanh"),
     "spectral level errors 0.3 %": Departures(spectral_level_rel=0.003),
     "dark drift 3 DN (time_s recorded)": Departures(dark_drift_dn=3.0),
     "dark drift 3 DN, no time_s column": Departures(dark_drift_dn=3.0),

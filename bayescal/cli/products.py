@@ -57,7 +57,7 @@ def cmd_invert(args) -> int:
 
     images = expand_frames(args.image or [])
     if args.maps is None and bool(images) == (args.dn is not None):
-        raise SpecError("give an IMAGE (or several) or --dn values (one of them)")
+        raise SpecError("give an IMAGE or --dn values (one of them; several images invert a survey)")
     if args.dn is not None and not args.channel:
         raise SpecError("--dn needs --channel")
     if images and not args.out:

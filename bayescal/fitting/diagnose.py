@@ -47,6 +47,8 @@ CHANNEL_LEVEL_REL = (0.003, 0.01, 0.03)
 #: each channel's scale too (about 1.5 %), which no table can measure (it is degenerate with that channel's
 #: gain); folded in at its prior size, so absolute gains stay covered (0.867 when it followed the level errors)
 CHANNEL_SCALE_REL = 0.015
+#: a roll-off is tried only when some reading's signal exceeds this fraction of full scale
+ROLLOFF_REACH = 0.5
 
 
 def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
@@ -65,6 +67,13 @@ def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
         other = domain["response"]["nonlinearity_domain"]
         where = "after the gain" if other == "output" else "in the charge, before the gain"
         out[f"nonlinearity of the {other} ({where})"] = domain
+    if not r.rolloff and _reaches(frame, spec, ROLLOFF_REACH):
+        out["a soft roll-off towards full scale (not a polynomial)"] = {"response": {"rolloff": True}}
+        if domain is not None:  # the domain was decided without a roll-off; with one it may be the other
+            other = domain["response"]["nonlinearity_domain"]
+            out[f"a soft roll-off towards full scale, with the nonlinearity of the {other}"] = {
+                "response": {"rolloff": True, "nonlinearity_domain": other}
+            }
     if r.order < 4:
         out[f"response order {r.order + 1} (a roll-off near full scale)"] = {"response": {"order": r.order + 1}}
     drifting = d.drift is True or d.drift == "order" or (d.drift == "auto" and "time_s" in frame)
@@ -80,6 +89,13 @@ def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
             name = f"lamp errors that differ by channel, {rel:.1%} per level (its spectrum changes with its level)"
             out[name] = {"sphere": {"channel_level_rel": rel, "channel_scale_rel": CHANNEL_SCALE_REL}}
     return out
+
+
+def _reaches(frame, spec: ModelSpec, fraction: float) -> bool:
+    """Some illuminated reading lies above ``fraction`` of full scale (its dark level subtracted roughly)."""
+    lit = frame["stimulus"] > 0
+    dark = frame.loc[~lit, "dn_mean"].min() if (~lit).any() else 0.0
+    return bool(((frame.loc[lit, "dn_mean"] - dark) > fraction * spec.full_scale).any())
 
 
 def other_domain(spec: ModelSpec, table: MeasurementTable) -> dict | None:
@@ -191,11 +207,11 @@ def _quiet_fit(table, spec, backend, seed):
 
 
 def _loo(result: Fit):
-    import arviz as az
+    import arviz_stats
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        return az.loo(result.posterior, pointwise=True)
+        return arviz_stats.loo(result.posterior, pointwise=True)
 
 
 def _difference(current, candidate) -> tuple[float, float]:

@@ -9,7 +9,8 @@ assumptions (each switchable, all realistic):
   uniformly within +-``gain_step_error`` of its label;
 - **shutter offset**: the sensor integrates ``t + shutter_offset_s``;
 - **roll-off**: the signal compresses smoothly near full scale,
-  ``S / (1 + (S / S_k)^4)^(1/4)`` (not a polynomial);
+  ``S / (1 + (S / S_k)^4)^(1/4)`` (not a polynomial), or ``S_t tanh(S / S_t)``
+  (``rolloff_shape = "tanh"``: compressed a little at every level);
 - **spectral sphere errors**: each lamp level's error differs slightly by
   colour channel (``spectral_level_rel``) on top of the shared part;
 - **dark drift**: the dark level drifts linearly by ``dark_drift_dn`` over the
@@ -51,6 +52,7 @@ class Departures:
     gain_step_error: float = 0.0
     shutter_offset_s: float = 0.0
     rolloff: bool = False
+    rolloff_shape: str = "knee"  # "knee": S / (1 + (S / S_k)^4)^(1/4); "tanh": S_t tanh(S / S_t)
     spectral_level_rel: float = 0.0
     dark_drift_dn: float = 0.0
     prnu: float = 0.01
@@ -129,7 +131,10 @@ class Realisation:
             s = out + cam.compression[channel] / cam.responsivity[channel] ** 2 * out**2
         else:
             s = (cam.responsivity[channel] * e + cam.compression[channel] * e**2) * g
-        if self.departures.rolloff:
+        if self.departures.rolloff and self.departures.rolloff_shape == "tanh":
+            top = 1.3 * cam.full_scale  # an exponential approach: every signal compressed a little
+            s = top * np.tanh(s / top)
+        elif self.departures.rolloff:
             knee = 1.6 * cam.full_scale
             s = s / (1.0 + (np.maximum(s, 0.0) / knee) ** 4) ** 0.25
         return s

@@ -34,6 +34,8 @@ def test_candidates_are_the_switches_the_table_can_inform():
     assert any("nonlinearity of the output" in n for n in names)  # several illuminated gains
     assert any("glow" in n for n in names)  # dark rows at four exposures
     assert any("response order 3" in n for n in names)
+    assert "a soft roll-off towards full scale (not a polynomial)" in names  # readings reach 60 % of full scale
+    assert "a soft roll-off towards full scale, with the nonlinearity of the output" in names
     # one illuminated gain: the domain of the nonlinearity cannot be told
     frame, _ = simulate_bench(BenchCamera(), Departures(), seed=1)
     one_gain = bc.MeasurementTable.from_frame(frame[frame.gain == 1.0].reset_index(drop=True))
@@ -66,7 +68,8 @@ def test_a_dark_drift_without_times_is_named_not_blamed_on_something_else():
     [
         (Departures(spectral_level_rel=0.01, channel_scale_rel=0.015), "lamp errors that differ by channel"),
         (Departures(glow_dn_s2=2e4), "amplifier glow"),
-        (Departures(rolloff=True), "response order 3"),
+        (Departures(rolloff=True), "a soft roll-off towards full scale"),
+        (Departures(rolloff=True, rolloff_shape="tanh"), "a soft roll-off towards full scale"),
     ],
 )
 def test_each_departure_is_named(departures, adopted):
@@ -91,3 +94,33 @@ def test_glow_and_channel_scale_terms():
     assert np.allclose(common, 1.0)
     assert np.std(np.log(folded[..., 1]), axis=(0, 1)) == pytest.approx([0.02] * 3, rel=0.03)
     assert abs(np.corrcoef(folded[..., 0, 1].ravel(), folded[..., 1, 1].ravel())[0, 1]) < 0.02
+
+
+def test_a_roll_off_is_absorbed_not_refused():
+    """The bench's signal rolls off as S / (1 + (S / 1.6 FS)^4)^(1/4): with the roll-off component the fit
+    passes its checks, its knee and power cover the bench's, the offsets and gains cover the truth, and a
+    reading near full scale inverts to the stimulus that made it (a polynomial of order 3 bent A1 by 23 sd)."""
+    spec = bc.load_spec(SPEC).replace(response={"rolloff": True})
+    table, real = _table(Departures(rolloff=True), 10_000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = bc.fit(table, spec, "laplace", seed=10_000)
+    assert result.ok, result.diagnostics.verdict
+    knee, power = result.draws("rolloff_knee_dn"), result.draws("rolloff_power")
+    assert np.quantile(knee, 0.005) <= 1.6 * 4095 <= np.quantile(knee, 0.995)
+    assert np.quantile(power, 0.005) <= 4.0 <= np.quantile(power, 0.995)
+    rel = result.draws("A_rel")
+    for c, ch in enumerate(result.model.layout.channels):
+        lo, hi = np.quantile(rel[:, c, :2], [0.005, 0.995], axis=0)
+        truth = real.true_coefficients(ch, relative=True)[:2]
+        assert np.all((lo <= truth) & (truth <= hi)), (ch, lo, truth, hi)
+    cal = bc.Calibration.from_fit(result)
+    setting = bc.Setting(0.004, 1.0)
+    stimulus = 110.0  # G reads ~3400 DN there, where the roll-off compresses the signal by ~2 %
+    dn = float(np.median(cal.expected_dn("G", stimulus, setting)))
+    assert 3000 < dn < cal.saturation_dn
+    inv = bc.invert(cal, [dn], "G", setting, noise=False)
+    assert inv.median[0] == pytest.approx(stimulus, rel=0.01)
+    assert inv.lower[0] < stimulus < inv.upper[0]
+    linear = bc.Calibration(**{f: getattr(cal, f) for f in cal.__dataclass_fields__ if f not in ("tables", "rolloff")})
+    assert bc.invert(linear, [dn], "G", setting, noise=False).median[0] < 0.99 * stimulus  # the roll-off undone

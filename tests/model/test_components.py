@@ -176,3 +176,27 @@ def test_the_model_and_the_posterior_evaluate_one_equation(seed000):
         setting = bc.Setting(r.exposure_s, r.gain, r.tdi_stages, temperature_c=r.temperature_c)
         predicted = cal.expected_dn(r.channel, r.stimulus, setting, relative=True)[:n]
         np.testing.assert_allclose(predicted, row_mean[:, i], rtol=1e-9)
+
+
+def test_rolloff_compresses_monotonically_and_is_undone():
+    """S / (1 + (S/K)^p)^(1/p): linear far below the knee, monotone, below K; expand inverts it (inf past K);
+    its derivatives to second order are finite at S = 0 and far above the knee (the Laplace fit's Hessian)."""
+    import jax
+    import jax.numpy as jnp
+
+    from bayescal._config import numerics
+    from bayescal.model.components.response import Response
+
+    s = np.linspace(-50.0, 40_000.0, 4001)
+    out = Response.compress(s, 6000.0, 4.0)
+    assert np.all(np.diff(out) > 0) and np.all(out < 6000.0)
+    assert out[3000] == pytest.approx(s[3000] * (1 + (s[3000] / 6000.0) ** 4) ** -0.25, rel=1e-12)
+    assert np.allclose(out[s <= 0], s[s <= 0])
+    assert Response.compress(np.array([100.0]), 6000.0, 4.0)[0] == pytest.approx(100.0, rel=1e-7)  # linear far below
+    np.testing.assert_allclose(Response.expand(out, 6000.0, 4.0), s, rtol=1e-9, atol=1e-9)
+    assert np.isinf(Response.expand(np.array([6000.0, 7000.0]), 6000.0, 4.0)).all()
+    with numerics():
+        f = lambda v: jnp.sum(Response.compress(jnp.array([0.0, 1e-9, 0.5, 30.0]), v[0], v[1], jnp))
+        hess = jax.hessian(f)(jnp.array([1.2, 3.0]))
+        grad_s = jax.jacfwd(jax.grad(lambda x: Response.compress(x, 1.2, 3.0, jnp)))(0.0)
+    assert np.isfinite(np.asarray(hess)).all() and np.isfinite(float(grad_s))

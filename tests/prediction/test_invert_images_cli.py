@@ -188,7 +188,7 @@ def test_tables_are_computed_once_and_only_for_present_values(calibrated, monkey
     first = bc.invert_image(cal, image, setting, channel="R")
     key = TableKey.of("R", setting, n_avg=1.0, prnu=cal.prnu, level=0.95, noise=True, seed=0)
     assert int(table(cal, key, [])["known"].sum()) == len(np.unique(image))  # a 16-bit camera never fills 65,536
-    monkeypatch.setattr(inv, "_summaries", lambda *a, **k: pytest.fail("the table was computed again"))
+    monkeypatch.setattr(inv, "value_summaries", lambda *a, **k: pytest.fail("the table was computed again"))
     again = bc.invert_image(cal, image[::-1], setting, channel="R")
     np.testing.assert_array_equal(again["median"].values, first["median"].values[::-1])
 
@@ -215,7 +215,7 @@ def test_tables_kept_beside_the_posterior(calibrated, tmp_path, monkeypatch):
     assert tables.persist_tables(cal) == []  # nothing grew since
     again = bc.Calibration.load(mine)
     assert tables.restore_tables(again) == 3
-    monkeypatch.setattr(inv, "_summaries", lambda *a, **k: pytest.fail("a kept table was computed again"))
+    monkeypatch.setattr(inv, "value_summaries", lambda *a, **k: pytest.fail("a kept table was computed again"))
     np.testing.assert_array_equal(bc.invert_image(again, image, setting, cfa="BGGR")["upper"], first["upper"])
     monkeypatch.undo()
     # tables of another posterior (or another bayescal) are not used
@@ -295,7 +295,7 @@ def test_survey_on_a_dask_cluster(calibrated, tmp_path):
     jobs = [
         FrameJob(str(mine), str(p), str(tmp_path / "out" / p.stem), 0.004, 1.0, 1.0, None, cfa="GRBG") for p in paths
     ]
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as lc:
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=":0") as lc:
         results = invert_frames(cal, jobs, scheduler=lc.scheduler_address)
     assert [r["image"] for r in results] == [str(p) for p in paths]
     assert len(list(mine.glob("inversion-*.npz"))) == 3  # every value computed once, before the workers start
