@@ -52,7 +52,6 @@ class Departures:
     gain_step_error: float = 0.0
     shutter_offset_s: float = 0.0
     rolloff: bool = False
-    rolloff_shape: str = "knee"  # "knee": S / (1 + (S / S_k)^4)^(1/4); "tanh": S_t tanh(S / S_t)
     spectral_level_rel: float = 0.0
     dark_drift_dn: float = 0.0
     prnu: float = 0.01
@@ -60,11 +59,19 @@ class Departures:
     output_nonlinearity: bool = False
     channel_scale_rel: float = 0.0
     glow_dn_s2: float = 0.0
+    rolloff_shape: str = "knee"  # "knee": S / (1 + (S / S_k)^4)^(1/4); "tanh": S_t tanh(S / S_t)
 
     @classmethod
     def everything(cls) -> Departures:
         """All departures at once, at the sizes of the misspecification benchmark."""
-        return cls(0.08, 0.0002, True, 0.003, 3.0, 0.03)
+        return cls(
+            gain_step_error=0.08,
+            shutter_offset_s=0.0002,
+            rolloff=True,
+            spectral_level_rel=0.003,
+            dark_drift_dn=3.0,
+            prnu=0.03,
+        )
 
 
 @dataclass(frozen=True)
