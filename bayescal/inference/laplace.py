@@ -335,6 +335,7 @@ def integrated_draws(
         items = sorted(found.items())
         thetas = np.array([t for t, _ in items])
         logp = np.array([v[2] for _, v in items])
+        logp = np.where(np.isnan(logp), -np.inf, logp)  # a grid point whose density is not a number: no weight
         if not np.isfinite(logp.max()):
             break
         w = np.exp(logp - logp.max())
@@ -348,7 +349,7 @@ def integrated_draws(
             break
         for theta in grow:
             conditional(float(theta))
-    keep = [t for t in sorted(found) if found[t][1] is not None]
+    keep = [t for t in sorted(found) if found[t][1] is not None and np.isfinite(found[t][2])]
     if not keep:  # no grid point is a proper conditional maximum: the Gaussian, flagged as failed
         return laplace_draws(result, n, seed), {"edge_weight": np.nan, "failed": "no grid point is a maximum"}
     thetas = np.array(keep)
