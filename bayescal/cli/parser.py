@@ -30,6 +30,13 @@ def build() -> argparse.ArgumentParser:
     )
     p.add_argument("--version", action="version", version=f"bayescal {__version__}")
     sub = p.add_subparsers(required=True, metavar="COMMAND")
+    for verb in VERBS:
+        verb(sub)
+    return p
+
+
+def _fit(sub) -> None:
+    """The arguments of ``bayescal fit``."""
     f = sub.add_parser("fit", help="fit a calibration model to a measurement table")
     f.add_argument("data", help="CSV or Parquet measurement table")
     f.add_argument("--model", required=True, help="model spec (TOML), or a shipped one's name: seed000, seed002, ...")
@@ -50,6 +57,10 @@ def build() -> argparse.ArgumentParser:
         help="when the fit does not describe its data, fail (exit 3) without trying the library's components",
     )
     f.set_defaults(func=cmd_fit)
+
+
+def _predict(sub) -> None:
+    """The arguments of ``bayescal predict``."""
     pr = sub.add_parser("predict", help="posterior predictive DN at a (possibly unmeasured) setting")
     pr.add_argument("posterior", help="fit directory or its posterior.nc")
     setting_args(pr, required=True)
@@ -59,6 +70,10 @@ def build() -> argparse.ArgumentParser:
     pr.add_argument("--out", help="also write the table as CSV")
     pr.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     pr.set_defaults(func=cmd_predict)
+
+
+def _invert(sub) -> None:
+    """The arguments of ``bayescal invert``."""
     iv = sub.add_parser("invert", help="radiance posterior of DN values or an image (median and 95 %% interval)")
     iv.add_argument("posterior", help="fit directory or its posterior.nc")
     iv.add_argument(
@@ -81,6 +96,10 @@ def build() -> argparse.ArgumentParser:
     )
     iv.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     iv.set_defaults(func=cmd_invert)
+
+
+def _maps(sub) -> None:
+    """The arguments of ``bayescal maps``."""
     mp = sub.add_parser(
         "maps", help="per-pixel relative gain, offset, dark current and defect maps from flat and dark frame stacks"
     )
@@ -111,6 +130,10 @@ def build() -> argparse.ArgumentParser:
     mp.add_argument("--report", action="store_true", help="also write OUT/maps_report.html (+ .md)")
     mp.add_argument("--quiet", action="store_true", help="no progress bar or stage messages")
     mp.set_defaults(func=cmd_maps)
+
+
+def _plan(sub) -> None:
+    """The arguments of ``bayescal plan``."""
     pl = sub.add_parser("plan", help="choose gain/exposure/TDI so the next frame lands in a DN window")
     pl.add_argument("posterior", help="fit directory or its posterior.nc")
     pl.add_argument("--channel", required=True, help="channel the reading (or the scene) is of")
@@ -125,16 +148,28 @@ def build() -> argparse.ArgumentParser:
     pl.add_argument("--top", type=positive_int, default=5, help="rows to print")
     pl.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     pl.set_defaults(func=cmd_plan)
+
+
+def _report(sub) -> None:
+    """The arguments of ``bayescal report``."""
     rp = sub.add_parser("report", help="HTML report (figures embedded) + report.json + report.md of a fit")
     rp.add_argument("fit_dir", help="directory written by `bayescal fit`")
     rp.add_argument("--out", help="HTML path (default FIT_DIR/report.html); .json and .md go beside it")
     rp.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     rp.set_defaults(func=cmd_report)
+
+
+def _characterize(sub) -> None:
+    """The arguments of ``bayescal characterize``."""
     ch = sub.add_parser("characterize", help="EMVA 1288: standard estimates beside posteriors (K, R, QE, dark, ...)")
     ch.add_argument("input", help="EMVA 1288 descriptor (.txt) with its images, crop128.npz, or a reduced steps.csv")
     ch.add_argument("--out", required=True, help="output directory")
     ch.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     ch.set_defaults(func=cmd_characterize)
+
+
+def _select(sub) -> None:
+    """The arguments of ``bayescal select``."""
     se = sub.add_parser(
         "select",
         help="compare polynomial orders, components and where the nonlinearity arises (a table with a gain "
@@ -152,6 +187,10 @@ def build() -> argparse.ArgumentParser:
         help="a fleet table (camera column): compare no / partial / complete pooling by PSIS-LOO over units",
     )
     se.set_defaults(func=cmd_select)
+
+
+def _scene(sub) -> None:
+    """The arguments of ``bayescal scene``."""
     sc = sub.add_parser("scene", help="cheapest calibration whose inversion of an image matches the full model's")
     sc.add_argument("image", help="TIFF, PNG or NPY image (the scene)")
     sc.add_argument("posteriors", nargs="+", help="fit directories (or posterior.nc) of the candidate models")
@@ -162,6 +201,10 @@ def build() -> argparse.ArgumentParser:
     sc.add_argument("--out", help="write the comparison as JSON here")
     sc.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     sc.set_defaults(func=cmd_scene)
+
+
+def _sbc(sub) -> None:
+    """The arguments of ``bayescal sbc``."""
     sb = sub.add_parser("sbc", help="simulation-based calibration of a model over a table's design (rank tests)")
     sb.add_argument("data", help="CSV or Parquet table: its design (settings, levels) is used, not its readings")
     sb.add_argument("--model", required=True, help="model spec (TOML); its priors generate the datasets")
@@ -170,12 +213,20 @@ def build() -> argparse.ArgumentParser:
     sb.add_argument("--out", required=True, help="output stem: writes STEM.csv, STEM.md, STEM.png")
     sb.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     sb.set_defaults(func=cmd_sbc)
+
+
+def _simulate(sub) -> None:
+    """The arguments of ``bayescal simulate``."""
     s = sub.add_parser("simulate", help="simulate a measurement table from a design with a [truth] table")
     s.add_argument("--design", required=True, help="design TOML (names its spec, holds [truth])")
     s.add_argument("--model", help="model spec (default: the design's)")
     s.add_argument("--out", required=True, help="CSV to write")
     s.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     s.set_defaults(func=cmd_simulate)
+
+
+def _fleet(sub) -> None:
+    """The arguments of ``bayescal fleet``."""
     fl = sub.add_parser("fleet", help="calibrate a fleet of cameras over campaigns: each alone, then the hierarchy")
     fl.add_argument(
         "data", help="CSV or Parquet measurement table with 'camera' and optional 'campaign' (date) columns"
@@ -193,6 +244,10 @@ def build() -> argparse.ArgumentParser:
     fl.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     fl.add_argument("--quiet", action="store_true", help="no progress bar")
     fl.set_defaults(func=cmd_fleet)
+
+
+def _fleet_query(sub) -> None:
+    """The arguments of ``bayescal fleet-query``."""
     fq = sub.add_parser("fleet-query", help="a fleet camera at a date, its drift probability, its calibration")
     fq.add_argument("fleet", help="directory written by `bayescal fleet`")
     who = fq.add_mutually_exclusive_group(required=True)
@@ -208,23 +263,54 @@ def build() -> argparse.ArgumentParser:
     fq.add_argument("--calibration", help="write this fit directory (for predict, invert, plan)")
     fq.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     fq.set_defaults(func=cmd_fleet_query)
+
+
+def _fleet_simulate(sub) -> None:
+    """The arguments of ``bayescal fleet-simulate``."""
     fs = sub.add_parser("fleet-simulate", help="simulate a fleet's campaigns (independent simulator) from a design")
     fs.add_argument("design", help="fleet design TOML, e.g. models/fleet_seed000_design.toml")
     fs.add_argument("--out", required=True, help="measurement table CSV to write")
     fs.add_argument("--truth", help="also write the true coefficients per unit to this CSV")
     fs.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     fs.set_defaults(func=cmd_fleet_simulate)
+
+
+def _examples(sub) -> None:
+    """The arguments of ``bayescal examples``."""
     ex = sub.add_parser("examples", help="list the shipped specs, designs and data; copy one out to edit it")
     ex.add_argument("--copy", metavar="NAME", help="copy this example (a design with its spec) to --to")
     ex.add_argument("--to", default=".", help="folder to copy into (default: this one)")
     ex.set_defaults(func=cmd_examples)
+
+
+def _demo(sub) -> None:
+    """The arguments of ``bayescal demo``."""
     d = sub.add_parser("demo", help="simulate the seed 000 camera, fit it, compare with least squares")
     d.add_argument("--out", default="demo-out", help="output directory (default demo-out)")
     d.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     d.add_argument("--backend", default="nuts", choices=backends.names(), help="backend (default nuts)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=cmd_demo)
-    return p
+
+
+VERBS = (
+    _fit,
+    _predict,
+    _invert,
+    _maps,
+    _plan,
+    _report,
+    _characterize,
+    _select,
+    _scene,
+    _sbc,
+    _simulate,
+    _fleet,
+    _fleet_query,
+    _fleet_simulate,
+    _examples,
+    _demo,
+)  # in the order of the command's help
 
 
 def finite(text: str) -> float:
