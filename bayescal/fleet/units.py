@@ -91,7 +91,7 @@ def load_fleet_table(path: str | os.PathLike) -> FleetTable:
 
 def fleet_from_frame(df: pd.DataFrame, *, source: str = "<frame>") -> FleetTable:
     """Validate a raw fleet frame (see :func:`load_fleet_table`)."""
-    df = df.copy()
+    df = df.reset_index(drop=True)  # rows by position: a filtered frame keeps its labels, which are not positions
     df.columns = [str(c).strip() for c in df.columns]
     if len(df) == 0:
         raise TableError(f"{source} has no data rows")

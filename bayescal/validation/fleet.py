@@ -10,7 +10,9 @@ not the fleet model's parametrisation, and with its departures from it:
 - **ageing that settles**: responsivity falls as ``1 - loss (1 - exp(-t / settle_years))``
   with each camera's ``loss`` uniform in ``loss_range``: curved, not the model's
   straight trend in log gain; plus an independent per-campaign jitter
-  (``campaign_jitter``, not a random walk);
+  (``campaign_jitter``, not a random walk); optionally a random walk of the gain
+  (``walk_rel`` per campaign, log-normal steps shared by the channels): the drift a
+  fleet's drift probabilities must be calibrated against;
 - **offset creep**: each camera's dark offset moves by ``offset_creep_dn`` per year
   (per-camera, uniform within +-50 %) from a per-camera start (Normal, ``offset_spread_dn``);
 - **nonlinearity spread**: the compression is the type's times a factor uniform in 0.7-1.3;
@@ -48,6 +50,7 @@ class FleetDesign:
     loss_range: tuple[float, float] = (0.01, 0.06)
     settle_years: float = 1.5
     campaign_jitter: float = 0.002
+    walk_rel: float = 0.0
     offset_spread_dn: float = 4.0
     offset_creep_dn: float = 1.5
     compression_band: tuple[float, float] = (0.7, 1.3)
@@ -74,6 +77,7 @@ _AMOUNTS = {
     "colour_spread": True,
     "settle_years": False,
     "campaign_jitter": True,
+    "walk_rel": True,
     "offset_spread_dn": True,
     "gain_step_error": True,
     "sphere_common_rel": True,
@@ -192,13 +196,17 @@ def simulate_fleet(design: FleetDesign | None = None, seed: int = 0) -> tuple[pd
         offset0 = rng.normal(0.0, d.offset_spread_dn)
         creep = d.offset_creep_dn * rng.uniform(0.5, 1.5)
         level_idx = d.brief_levels if name in d.brief else tuple(range(len(d.levels)))
+        walk = np.ones(len(d.campaigns))
+        if d.walk_rel:  # (drawn only when asked for: the other designs keep their random numbers)
+            steps = d.walk_rel * rng.standard_normal(len(d.campaigns))
+            walk = np.exp(np.cumsum(np.where(np.arange(len(d.campaigns)) > 0, steps, 0.0)))
         for j, campaign in enumerate(d.campaigns):
             if (name, campaign) in d.absent:
                 continue
             t = years[j]
             age = 1.0 - loss * (1.0 - np.exp(-t / d.settle_years))
             jitter = float(np.exp(d.campaign_jitter * rng.standard_normal()))
-            factor = {c: band * colour[c] * age * jitter for c in chans}
+            factor = {c: band * colour[c] * age * jitter * walk[j] for c in chans}
             cam = replace(
                 base,
                 levels=tuple(d.levels[i] for i in level_idx),

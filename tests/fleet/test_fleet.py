@@ -676,3 +676,13 @@ def test_fleet_sbc_statistics_flag_a_too_narrow_posterior(tmp_path):
     assert counts.sum().tolist() == [n, n] and counts["narrow"].iloc[[0, -1]].min() > 2 * n / 10
     res.plot(tmp_path / "ranks.png")
     assert (tmp_path / "ranks.png").stat().st_size > 0
+
+
+def test_a_filtered_frame_reads_as_its_rows(small_fleet):
+    """A frame with rows left out (labels that are not positions) is read by position, not by label."""
+    table, _ = small_fleet
+    kept = table[table.campaign != "2026-03-01"].astype(str)
+    assert kept.index[-1] >= len(kept)  # its labels run past its length
+    fleet = fleet_from_frame(kept, source="filtered")
+    assert sum(len(u.table.frame) for u in fleet.units) == len(kept)
+    assert {u.campaign.date().isoformat() for u in fleet.units} == {"2024-03-01", "2025-03-01"}
