@@ -77,6 +77,11 @@ def cmd_fleet_query(args) -> int:
     if args.drift_percent is not None:
         p = fleet.drift_probability(camera, args.date, args.drift_percent, seed=args.seed)
         print(f"P(gain drifted by more than {args.drift_percent:g} % by {args.date}) = {p:.3f}")
+        rel = fleet.drift_probability(camera, args.date, args.drift_percent, seed=args.seed, relative=True)
+        print(f"P(... by more than {args.drift_percent:g} % against the fleet's common trend) = {rel:.3f}")
+        caveat = fleet.drift_caveat(camera)
+        if caveat:
+            print(f"bayescal: note: {caveat}", file=sys.stderr)
         when = fleet.recalibration_date(camera, args.drift_percent, args.probability)
         print(
             f"recalibrate by {when.date().isoformat()} (risk {args.probability:g} of a {args.drift_percent:g} % drift)"

@@ -277,9 +277,10 @@ class FleetFit:
             out = out + self._flat("jitter_sd")[:, kinds][(...,) + extra] * z
         return out
 
-    def _gain_change(self, camera: str, t1, since=None, seed: int = 0) -> np.ndarray:
+    def _gain_change(self, camera: str, t1, since=None, seed: int = 0, relative: bool = False) -> np.ndarray:
         """Log-gain change (standardised) from ``since`` (default: the last campaign) to the
-        dates ``t1`` (years; scalar or ``(D,)``): draws ``(S,)`` or ``(S, D)``."""
+        dates ``t1`` (years; scalar or ``(D,)``): draws ``(S,)`` or ``(S, D)``; ``relative``: less the
+        fleet's common trend over the same time (what the campaigns measure of this camera)."""
         if not self.plan.drift:
             raise SpecError("the fleet has one campaign date: drift is not modelled (add campaigns)")
         m = self.camera_index(camera)
@@ -289,24 +290,59 @@ class FleetFit:
         rng = np.random.default_rng(np.random.SeedSequence([seed, 0xD41F7]))
         rate = self._flat("rate")[:, 0, m] if "rate" in self.draws.draws else self._flat("rate_mean")[:, 0]
         extra = (None,) * t1.ndim
+        if relative:
+            rate = rate - self._flat("rate_mean")[:, 0]
         change = rate[(...,) + extra] * (t1 - t0)
         change = change + self._ahead(slice(0, 1), t1 - t0, rng)[:, 0]
         if self.plan.jitter and since is None:  # against the last campaign's own state (known from its data)
             change = change - self._flat("jitter")[:, 0, units[-1]][(...,) + extra]
         return change
 
-    def gain_drift(self, camera: str, date, since=None, seed: int = 0) -> np.ndarray:
+    def gain_drift(self, camera: str, date, since=None, seed: int = 0, relative: bool = False) -> np.ndarray:
         """Draws ``(S,)`` of the relative gain change ``gain(date) / gain(since) - 1``
-        (``since``: the camera's last campaign)."""
-        return np.expm1(self._gain_change(camera, self.years(date), since, seed) * self.data.scale[0])
+        (``since``: the camera's last campaign); ``relative``: against the fleet's common trend."""
+        change = self._gain_change(camera, self.years(date), since, seed, relative)
+        return np.expm1(change * self.data.scale[0])
 
-    def drift_probability(self, camera: str, date, percent: float, since=None, seed: int = 0) -> float:
-        """``P(|gain(date) / gain(since) - 1| > percent / 100)`` (``since``: the last campaign)."""
+    def drift_probability(
+        self, camera: str, date, percent: float, since=None, seed: int = 0, relative: bool = False
+    ) -> float:
+        """``P(|gain(date) / gain(since) - 1| > percent / 100)`` (``since``: the last campaign).
+
+        ``relative``: the camera's change against the fleet's common trend, which the campaigns
+        measure even where the common trend itself is not (:meth:`drift_caveat`)."""
         if percent <= 0:
             raise SpecError(f"drift threshold {percent} %: expected a positive percentage")
         if since is None:
             self.check_date(date, camera, after_last=True)
-        return float(np.mean(np.abs(self.gain_drift(camera, date, since, seed)) > percent / 100.0))
+        drift = self.gain_drift(camera, date, since, seed, relative)
+        return float(np.mean(np.abs(drift) > percent / 100.0))
+
+    def trend_sd(self, camera: str) -> tuple[float, float]:
+        """Posterior sd of the camera's gain trend (relative change per year): absolute, and against
+        the fleet's common trend."""
+        if not self.plan.drift:
+            raise SpecError("the fleet has one campaign date: drift is not modelled (add campaigns)")
+        m = self.camera_index(camera)
+        scale = self.data.scale[0]
+        common = self._flat("rate_mean")[:, 0]
+        rate = self._flat("rate")[:, 0, m] if "rate" in self.draws.draws else common
+        return float(np.std(rate) * scale), float(np.std(rate - common) * scale)
+
+    def drift_caveat(self, camera: str) -> str | None:
+        """What the campaigns cannot tell apart, when it dominates the camera's drift forecast: the
+        fleet's common trend against the campaigns' sphere scale errors (every camera of a campaign
+        shares its sphere, so a change common to the fleet reads the same as a change of the spheres).
+        None when the camera's own trend is the larger uncertainty."""
+        absolute, relative = self.trend_sd(camera)
+        if absolute <= 2.0 * relative:
+            return None
+        return (
+            f"the fleet's common gain trend cannot be told apart from the campaigns' sphere scale errors: "
+            f"the camera's trend is known to +-{absolute:.2%}/year, of which all but +-{relative:.2%}/year "
+            "is that common part; the drift probability carries it (on independent fleets it overstates the "
+            "risk), the probability relative to the fleet does not"
+        )
 
     def recalibration_date(self, camera: str, percent: float, probability: float = 0.05, horizon_years: float = 10.0):
         """The first date (monthly steps) at which ``drift_probability`` exceeds ``probability``;

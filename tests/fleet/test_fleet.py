@@ -514,6 +514,13 @@ def test_predictions_for_new_cameras_dates_and_drift(fitted):
     p_small = result.drift_probability("SN001", "2026-04-01", 5.0)
     p_large = result.drift_probability("SN001", "2030-03-01", 5.0)
     assert 0.0 <= p_small < p_large <= 1.0
+    # every camera of a campaign shares its sphere: the fleet's common trend is known only as well as the
+    # spheres' 3 % scale errors allow, a camera's trend against the fleet far better; the caveat says so
+    absolute, relative = result.trend_sd("SN001")
+    assert absolute > 2 * relative > 0
+    assert "cannot be told apart from the campaigns' sphere scale errors" in result.drift_caveat("SN001")
+    p_rel = result.drift_probability("SN001", "2027-03-01", 2.0, relative=True)
+    assert p_rel < result.drift_probability("SN001", "2027-03-01", 2.0)
 
 
 @pytest.mark.slow  # the command-line test saves, loads and exports a fleet in the default run
@@ -560,8 +567,10 @@ def test_cli_simulate_fit_query_and_predict(tmp_path, capsys):
     cal = tmp_path / "cal"
     args = ["fleet-query", str(out), "--camera", "SN001", "--date", "2026-09-01", "--drift-percent", "3"]
     assert main([*args, "--calibration", str(cal)]) == 0
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "P(gain drifted by more than 3 %" in printed
+    assert "against the fleet's common trend) = " in printed
     assert "recalibrate by" in printed or "risk stays below" in printed
     assert main(["predict", str(cal), "--channel", "G", "--exposure-s", "0.004", "--stimulus", "5"]) == 0
     assert main(["fleet-query", str(out), "--new-camera", "--date", "2026-09-01"]) == 0
