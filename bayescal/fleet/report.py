@@ -48,12 +48,39 @@ def write_fleet_report(fleet: FleetFit, out: str | os.PathLike) -> Path:
         parts.append("<ul>" + "".join(f"<li>{escape(w)}</li>" for w in fleet.warnings) + "</ul>")
     for title, png in figures:
         parts.append(f"<h2>{escape(title)}</h2>{image(png, title)}")
+    if fleet.plan.drift:
+        parts += _drift_trust(fleet)
     parts.append("<h2>Population (hyperparameters)</h2>")
     parts.append(table(fleet.hyperparameters()))
     parts.append("<h2>Per unit: fleet beside alone</h2>")
     parts.append(table(_unit_table(fleet)))
     out = Path(out)
     write_text_atomic(out, page(f"fleet {fleet.spec.name}", "\n".join(parts)))
+    return out
+
+
+def _drift_trust(fleet: FleetFit) -> list[str]:
+    """How well each camera's gain trend is known, absolute and against the fleet's common trend, and
+    what the campaigns cannot tell apart (:meth:`FleetFit.drift_caveat`)."""
+    rows = []
+    for camera in fleet.cameras:
+        absolute, relative = fleet.trend_sd(camera)
+        rows.append(
+            {
+                "camera": camera,
+                "trend sd, absolute (%/year)": 100 * absolute,
+                "trend sd, against the fleet (%/year)": 100 * relative,
+            }
+        )
+    caveats = [c for c in (fleet.drift_caveat(camera) for camera in fleet.cameras) if c]
+    out = ["<h2>How well the drift is known</h2>", table(pd.DataFrame(rows))]
+    if caveats:
+        out.append(
+            f"<p>For {len(caveats)} of {len(fleet.cameras)} cameras {escape(caveats[0].split(':')[0])}: "
+            "their absolute drift probabilities carry the common trend's uncertainty (on independent fleets "
+            "they overstate the risk); <code>fleet-query --drift-percent</code> also gives the probability "
+            "against the fleet's common trend, which the campaigns measure.</p>"
+        )
     return out
 
 

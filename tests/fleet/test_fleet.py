@@ -563,6 +563,8 @@ def test_cli_simulate_fit_query_and_predict(tmp_path, capsys):
     out = tmp_path / "fit"
     code = main(["fleet", str(table), "--model", str(spec), "--out", str(out), "--quiet", "--report"])
     assert (out / "fleet.nc").is_file() and (out / "fleet_report.html").stat().st_size > 10_000
+    html = (out / "fleet_report.html").read_text()
+    assert "How well the drift is known" in html and "trend sd, against the fleet" in html
     assert code == 0, capsys.readouterr().err
     cal = tmp_path / "cal"
     args = ["fleet-query", str(out), "--camera", "SN001", "--date", "2026-09-01", "--drift-percent", "3"]
