@@ -14,7 +14,6 @@ from functools import lru_cache
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from bayescal._config import computes
 from bayescal.inference.program import Program
@@ -66,7 +65,7 @@ def find_map(program: Program, data: ModelData, z0: jax.Array | None = None, rou
     z = jnp.asarray(z)
     for _ in range(rounds):
         precond = _whitening(np.asarray(program.hessian(z, data)))
-        sol = _WHITENED_BFGS(program.potential, z, jnp.asarray(precond), data)
+        sol = _whitened_bfgs()(program.potential, z, jnp.asarray(precond), data)
         steps += int(sol.stats["num_steps"])
         z = z + jnp.asarray(precond) @ sol.value
         grad = np.asarray(program.value_and_grad(z, data)[1])
@@ -146,7 +145,12 @@ def _whitening(hess, xp=np):
     return xp.where(finite, v / xp.sqrt(w), xp.eye(hess.shape[0]))
 
 
-def _make_whitened_bfgs():
+@lru_cache(maxsize=1)
+def _whitened_bfgs():
+    """The jitted BFGS round in whitened coordinates (built on first use: optimistix is imported only
+    by a fit whose Newton steps did not converge)."""
+    import optimistix as optx
+
     solver = optx.BFGS(rtol=1e-12, atol=1e-12)
 
     def run(potential, z_c, precond, data):
@@ -157,12 +161,12 @@ def _make_whitened_bfgs():
     return jax.jit(run, static_argnums=0)
 
 
-_WHITENED_BFGS = _make_whitened_bfgs()
-
 
 @lru_cache(maxsize=16)
 def _batched_map(program: Program, rounds: int):
     """Jitted, vmapped MAP search: ``(z0 (B, d), data (B, ...)) -> (z, hessian, newton_step^2, steps)``."""
+    import optimistix as optx
+
     solver = optx.BFGS(rtol=1e-12, atol=1e-12)
 
     def whitened(w, args):

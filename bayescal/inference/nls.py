@@ -30,7 +30,6 @@ from functools import lru_cache
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from bayescal._config import computes
 
@@ -58,6 +57,8 @@ def _solver(model: Callable) -> Callable:
     def residual(u, args):
         scale, x, y = args
         return model(u * scale, x) - y
+
+    import optimistix as optx  # on first use: a fit that needs no nonlinear least squares never imports it
 
     solver = optx.LevenbergMarquardt(rtol=1e-14, atol=1e-14)
 
