@@ -161,7 +161,6 @@ def _whitened_bfgs():
     return jax.jit(run, static_argnums=0)
 
 
-
 @lru_cache(maxsize=16)
 def _batched_map(program: Program, rounds: int):
     """Jitted, vmapped MAP search: ``(z0 (B, d), data (B, ...)) -> (z, hessian, newton_step^2, steps)``."""
