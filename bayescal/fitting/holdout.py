@@ -98,35 +98,32 @@ def holdout_checks(
     lit = frame["stimulus"].to_numpy() > 0
     y = np.asarray(data.y)
     problems: list[str] = []
-    rows = []
-    refitted = []  # (kind, name, rows) of each group refitted, and its draws
-    for kind, name, mask in holdout_groups(frame, lit, darks=not model.spec.dark.drift):
+    refits, failed = [], {}  # each group refitted: (kind, name, rows, draws); failed groups by position
+    for position, (kind, name, mask) in enumerate(holdout_groups(frame, lit, darks=not model.spec.dark.drift)):
         idx = np.flatnonzero(mask & ~censored)
         if idx.size == 0:
             continue
         result = laplace(program, data._replace(keep=np.asarray(data.keep) & ~mask), mode)
         if not (result.positive_definite and result.converged):
-            rows.append({"kind": kind, "group": name, "n": int(idx.size), "z": float("nan"), "refit": "failed"})
-            continue
-        rows.append(len(refitted))  # filled in below, in the groups' order
-        refitted.append(((kind, name, idx), laplace_draws(result, n_draws, seed)))
-    if refitted:  # the predictions do not depend on which rows were kept: every group's draws in one call
-        every = program.constrain(np.concatenate([draws for _, draws in refitted]), data)
-    for k, ((kind, name, idx), _) in enumerate(refitted):
-        sites = {
-            key: np.asarray(every[key])[k * n_draws : (k + 1) * n_draws] for key in ("row_mean", "row_sd", "row_signal")
-        }
-        mu = sites["row_mean"][:, idx]
-        sd = sites["row_sd"][:, idx]
+            failed[position] = {"kind": kind, "group": name, "n": int(idx.size), "z": float("nan"), "refit": "failed"}
+        else:
+            refits.append((position, kind, name, idx, laplace_draws(result, n_draws, seed)))
+    # the predictions do not depend on which rows were kept: every group's draws in one call
+    every = program.constrain(np.concatenate([r[-1] for r in refits]), data) if refits else {}
+    found = dict(failed)
+    for k, (position, kind, name, idx, _) in enumerate(refits):
+        draws = slice(k * n_draws, (k + 1) * n_draws)
+        mu = np.asarray(every["row_mean"])[draws, idx]
+        sd = np.asarray(every["row_sd"])[draws, idx]
         avg = mu.mean(axis=1)
         var = float(np.var(avg) + np.mean(sd**2) / idx.size)
         dev = float(y[idx].mean() - avg.mean())
         z = dev / np.sqrt(var)
-        signal = float(sites["row_signal"][:, idx].mean())
+        signal = float(np.asarray(every["row_signal"])[draws, idx].mean())
         rec = {"kind": kind, "group": name, "n": int(idx.size), "z": float(z), "dev_dn": dev * scale}
         if kind != "dark" and signal > 0:
             rec["rel_dev"] = dev / signal
-        rows[rows.index(k)] = rec
+        found[position] = rec
         if abs(z) > z_threshold:
             side = "above" if dev > 0 else "below"
             size = f"{abs(rec['rel_dev']):.2%}" if "rel_dev" in rec else f"{abs(rec['dev_dn']):.3g} DN"
@@ -134,4 +131,5 @@ def holdout_checks(
                 f"left out of the fit, {name} read {size} {side} what the other rows predict "
                 f"(n = {idx.size}, z = {z:+.1f}): {_REMEDY[kind]}"
             )
+    rows = [found[p] for p in sorted(found)]  # in the groups' order
     return problems, {"groups": rows}
