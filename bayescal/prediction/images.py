@@ -21,7 +21,7 @@ from bayescal.io.cfa import CFA_PATTERNS, cfa_cells, channel_map
 from bayescal.io.files import read_image
 from bayescal.io.outputs import staged_directory
 from bayescal.posterior.calibration import Calibration, Setting
-from bayescal.prediction.invert import BOUND_NAMES, invert
+from bayescal.prediction.invert import BOUND_NAMES, invert, reading_prnu
 from bayescal.prediction.tables import gather
 
 __all__ = ["read_image", "channel_map", "channel_views", "invert_image", "write_radiance_maps", "CFA_PATTERNS"]
@@ -54,8 +54,7 @@ def invert_image(
     """
     image = np.asarray(image)
     views = channel_views(image, cfa=cfa, channel=channel, channels=channels)
-    if prnu is None:
-        prnu = cal.prnu if n_avg == 1 else 0.0
+    prnu = reading_prnu(cal, n_avg, prnu)
     if np.issubdtype(image.dtype, np.integer):
         if image.size and (image.min() < 0 or image.max() > cal.full_scale):
             raise TableError(f"image DN values must lie in 0..{cal.full_scale:g} for a {cal.bits}-bit camera")

@@ -107,6 +107,14 @@ class Inversion:
         )
 
 
+def reading_prnu(cal: Calibration, n_avg: float, prnu: float | None = None) -> float:
+    """The pixel response non-uniformity in a reading's noise: ``prnu`` if given, else the calibration's
+    for a single pixel (``n_avg == 1``) and 0 for a mean over pixels or frames (it averages away)."""
+    if prnu is not None:
+        return prnu
+    return cal.prnu if n_avg == 1 else 0.0
+
+
 def radiance_draws(
     cal: Calibration,
     channel: str,
@@ -181,8 +189,7 @@ def invert(
         raise TableError(f"DN value at index {bad} is not finite ({values.ravel()[bad]!r}); expected a number")
     if values.size and (values.min() < 0 or values.max() > cal.full_scale + 0.5):
         raise TableError(f"DN values must lie in 0..{cal.full_scale:g} for a {cal.bits}-bit camera")
-    if prnu is None:
-        prnu = cal.prnu if n_avg == 1 else 0.0
+    prnu = reading_prnu(cal, n_avg, prnu)
     if np.issubdtype(values.dtype, np.integer):  # distinct values by bincount (linear time), then one take each
         present = np.flatnonzero(np.bincount(values.ravel(), minlength=1))
         lut = np.full((5, int(present.max(initial=0)) + 1), np.nan)

@@ -21,8 +21,9 @@ An image is then one gather: each pixel's index is its DN plus its channel's
 offset in the stacked tables (the colour filter array's period tiled over a
 block of rows), and the 16-byte records are copied by ``numpy.take`` on row
 blocks in threads (numpy releases the GIL), with a histogram of the indices in
-the same pass that says which values still need computing and how many pixels
-are clipped, at or below dark, or extrapolated.
+the same pass that counts the pixels clipped, at or below dark, or
+extrapolated.  While a table is incomplete, a first pass (the histogram alone)
+finds the values the image has, and only those are computed.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ import numpy as np
 
 from bayescal.posterior.calibration import Calibration, Setting
 
-__all__ = ["RECORD", "TableKey", "table", "gather", "restore_tables", "persist_tables"]
+__all__ = ["RECORD", "TableKey", "table", "fill", "gather", "restore_tables", "persist_tables"]
 
 #: one table entry: 16 bytes, so a gather copies one complex128 per pixel
 RECORD = np.dtype(
@@ -137,6 +138,27 @@ def table(cal: Calibration, key: TableKey, values: np.ndarray | None = None) -> 
     return records
 
 
+def fill(
+    cal: Calibration,
+    channels: list[str],
+    setting: Setting,
+    *,
+    n_avg: float = 1.0,
+    prnu: float | None = None,
+    level: float = 0.95,
+    noise: bool = True,
+    seed: int = 0,
+) -> None:
+    """Compute every DN value's record of ``channels`` (the options as :func:`~bayescal.prediction.images.
+    invert_image` takes them), so that inversions elsewhere, a cluster's workers, need only read them."""
+    from bayescal.prediction.invert import reading_prnu
+
+    prnu = reading_prnu(cal, n_avg, prnu)
+    for name in channels:
+        cal.channel_index(name)
+        table(cal, TableKey.of(name, setting, n_avg=n_avg, prnu=prnu, level=level, noise=noise, seed=seed))
+
+
 def _cell_offsets(shape: tuple[int, ...], views: list[tuple[tuple, str]], names: list[str], size: int) -> np.ndarray:
     """Each pixel's table offset over one block of ``_ROWS`` rows: the channel layout's period, tiled."""
     period = (2, 2) if any(isinstance(index[0], slice) for index, _ in views) else (1, 1)
@@ -175,12 +197,13 @@ def gather(
     out = np.empty(image.shape, RECORD)
     flat_out = out.view(np.complex128).reshape(image.shape)
     starts = range(0, image.shape[0], _ROWS)
-    stacked = np.concatenate([table(cal, k, []) for k in keys]).view(np.complex128)
+    stacked = None  # the tables as one complex128 array, once every value the image has is computed
 
     def block(start: int) -> np.ndarray:
         rows = slice(start, min(start + _ROWS, image.shape[0]))
         index = np.add(image[rows], offsets[: rows.stop - start], dtype=np.int32)
-        np.take(stacked, index, out=flat_out[rows], mode="clip")
+        if stacked is not None:
+            np.take(stacked, index, out=flat_out[rows], mode="clip")
         return np.bincount(index.ravel(), minlength=len(names) * size)
 
     def run() -> np.ndarray:
@@ -190,13 +213,12 @@ def gather(
                 return np.sum(list(pool.map(block, starts)), axis=0)
         return np.sum([block(s) for s in starts], axis=0)
 
-    counts = run()
-    present = counts.reshape(len(names), size) > 0
-    if any(not np.all(table(cal, k, [])["known"][p]) for k, p in zip(keys, present, strict=True)):
-        # only the values the image has are computed, then the image is gathered again
-        tables = [table(cal, k, np.flatnonzero(p)) for k, p in zip(keys, present, strict=True)]
-        stacked = np.concatenate(tables).view(np.complex128)
-        counts = run()
+    if not all(table(cal, k, [])["known"].all() for k in keys):  # a first pass finds the values to compute
+        present = run().reshape(len(names), size) > 0
+        for k, p in zip(keys, present, strict=True):
+            table(cal, k, np.flatnonzero(p))
+    stacked = np.concatenate([table(cal, k, []) for k in keys]).view(np.complex128)
+    counts = run()  # the gather, with the histogram that counts the flags
     flags = np.concatenate([table(cal, k, [])[["bound", "extrapolated"]] for k in keys])
     return out, {
         "clipped": int(counts[flags["bound"] == 1].sum()),
