@@ -94,7 +94,7 @@ def cmd_invert(args) -> int:
 def _invert_images(args, cal, setting, images, image) -> int:
     """One image into ``--out``, or a survey's frames into ``--out/<frame>/`` (here, or on a Dask cluster)."""
     from bayescal.cli.progress import progress_bar
-    from bayescal.prediction.frames import FrameJob, frame_outputs, invert_frame, invert_frames
+    from bayescal.prediction.frames import FrameJob, frame_outputs, invert_frames
 
     survey = image is None
     outs = frame_outputs(images, args.out) if survey else [args.out]
@@ -116,14 +116,8 @@ def _invert_images(args, cal, setting, images, image) -> int:
         for path, out in zip(images, outs, strict=True)
     ]
     if not survey:
-        from bayescal.io.outputs import check_output_dir
-        from bayescal.prediction.tables import persist_tables, restore_tables
-
-        check_output_dir(args.out, "radiance")
-        restore_tables(cal)
         with progress_bar(1, "inverting", quiet=False):
-            r = invert_frame(jobs[0], cal, image)
-        persist_tables(cal)
+            (r,) = invert_frames(cal, jobs, first=image)
         print(
             f"inverted {r['pixels']} pixels of {r['image']}: {r['clipped']} clipped (lower bound only), "
             f"{r['below_dark']} at/below dark (upper bound only), {r['extrapolated']} beyond the calibrated range"

@@ -21,6 +21,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from bayescal.errors import SpecError, TableError
 
 __all__ = ["FrameJob", "expand_frames", "frame_outputs", "invert_frames"]
@@ -71,16 +73,19 @@ def frame_outputs(frames: Sequence[Path], out: str | os.PathLike) -> list[Path]:
     return [Path(out) / f.stem for f in frames]
 
 
-_CALIBRATIONS: dict[str, object] = {}  # per process: a worker reads each calibration once
+_CALIBRATIONS: dict[tuple[str, int], object] = {}  # per process: a worker reads each calibration once
 
 
 def _calibration(posterior: str):
+    """The calibration at ``posterior``, read once per process (again if the folder was rewritten since)."""
     from bayescal.posterior.calibration import Calibration
     from bayescal.prediction.tables import restore_tables
 
-    cal = _CALIBRATIONS.get(posterior)
+    path = Path(posterior)
+    key = (str(path.resolve()), (path / "posterior.nc" if path.is_dir() else path).stat().st_mtime_ns)
+    cal = _CALIBRATIONS.get(key)
     if cal is None:
-        cal = _CALIBRATIONS[posterior] = Calibration.load(posterior)
+        cal = _CALIBRATIONS[key] = Calibration.load(posterior)
         restore_tables(cal)
     return cal
 
@@ -128,17 +133,19 @@ def invert_frames(
     *,
     scheduler: str | None = None,
     tick: Callable[[int], None] | None = None,
+    first: np.ndarray | None = None,
 ) -> list[dict]:
     """Invert every frame of ``jobs`` (one output folder each); returns each frame's counts, in order.
 
-    ``cal`` is the calibration the jobs' ``posterior`` names, already read.
+    ``cal`` is the calibration the jobs' ``posterior`` names, already read; ``first``, the first
+    frame's image where the caller has read it (checked before the calibration was loaded).
     ``scheduler`` is a ``dask.distributed`` scheduler address: the frames
     run on its workers (which must see the same files); None runs them here,
     one after another, each gather on every core.  ``tick(done)`` reports
     progress.
     """
     from bayescal.io.outputs import check_output_dir
-    from bayescal.prediction.tables import TableKey, persist_tables, restore_tables, table
+    from bayescal.prediction.tables import fill, persist_tables, restore_tables
 
     for job in jobs:  # every target checked before any work: a user's folder stops the run at once
         if not Path(job.image).is_file():
@@ -147,18 +154,13 @@ def invert_frames(
     restore_tables(cal)
     if scheduler is not None:  # the workers read the tables from disk: every DN value, computed once here
         for job in {(j.cfa, j.channel, j.channels, j.n_avg, j.seed, _setting(j)): j for j in jobs}.values():
-            prnu = cal.prnu if job.n_avg == 1 else 0.0
-            for name in _channel_names(job):
-                table(
-                    cal,
-                    TableKey.of(name, _setting(job), n_avg=job.n_avg, prnu=prnu, level=0.95, noise=True, seed=job.seed),
-                )
+            fill(cal, _channel_names(job), _setting(job), n_avg=job.n_avg, seed=job.seed)
         persist_tables(cal)
         return _on_cluster(jobs, scheduler, tick)
     results = []
     try:
         for done, job in enumerate(jobs, 1):
-            results.append(invert_frame(job, cal))
+            results.append(invert_frame(job, cal, first if done == 1 else None))
             if tick is not None:
                 tick(done)
     except (TableError, SpecError) as exc:  # a bad frame: say how far the survey got
