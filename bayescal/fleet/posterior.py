@@ -288,7 +288,7 @@ class FleetFit:
         t1 = np.asarray(t1, dtype=float)
         t0 = float(self.data.years[units[-1]]) if since is None else self.years(since)
         rng = np.random.default_rng(np.random.SeedSequence([seed, 0xD41F7]))
-        rate = self._flat("rate")[:, 0, m] if "rate" in self.draws.draws else self._flat("rate_mean")[:, 0]
+        rate = self._gain_rate(m)
         extra = (None,) * t1.ndim
         if relative:
             rate = rate - self._flat("rate_mean")[:, 0]
@@ -323,11 +323,14 @@ class FleetFit:
         the fleet's common trend."""
         if not self.plan.drift:
             raise SpecError("the fleet has one campaign date: drift is not modelled (add campaigns)")
-        m = self.camera_index(camera)
+        rate = self._gain_rate(self.camera_index(camera))
         scale = self.data.scale[0]
-        common = self._flat("rate_mean")[:, 0]
-        rate = self._flat("rate")[:, 0, m] if "rate" in self.draws.draws else common
-        return float(np.std(rate) * scale), float(np.std(rate - common) * scale)
+        return float(np.std(rate) * scale), float(np.std(rate - self._flat("rate_mean")[:, 0]) * scale)
+
+    def _gain_rate(self, m: int) -> np.ndarray:
+        """Draws of camera ``m``'s log-gain trend (standardised per year): its own, or the fleet's
+        where cameras have none of their own."""
+        return self._flat("rate")[:, 0, m] if "rate" in self.draws.draws else self._flat("rate_mean")[:, 0]
 
     def drift_caveat(self, camera: str) -> str | None:
         """What the campaigns cannot tell apart, when it dominates the camera's drift forecast: the
