@@ -325,8 +325,8 @@ def _line_posterior(
         fits.append((beta, sse, rr))
         # log p(y | w) up to a constant: 1/2 log|W| - 1/2 log|X'WX| - (n - p)/2 log SSE (invariant to w's scale)
         log_ml.append(0.5 * np.sum(np.log(w)) - np.sum(np.log(np.abs(np.diag(rr)))) - 0.5 * dof * np.log(sse))
-    log_ml = np.asarray(log_ml)
-    prob = np.exp(log_ml - log_ml.max())
+    log_evidence = np.asarray(log_ml)
+    prob = np.exp(log_evidence - log_evidence.max())
     rows = rng.choice(len(fits), size=n, p=prob / prob.sum())
     out = np.empty((n, p))
     for g in np.unique(rows):

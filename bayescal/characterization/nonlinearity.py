@@ -97,7 +97,9 @@ def simulate_curves(
     rng = np.random.default_rng(seed)
     eps = rng.standard_normal(n_pixels)  # fixed pattern: the same pixels at every step
     pixel, common = _truth_fn(model, a, p, b, c)
-    means, stds, se_std = [], [], []
+    means: list[float] = []
+    stds: list[float] = []
+    se_std: list[float] = []
     for e in irradiance:
         v = pixel(e, eps)
         gain = common(v.mean())
@@ -111,14 +113,13 @@ def simulate_curves(
         stds.append(std)
         # sampling sd of the std: var(s^2) = 2 sigma_total^4 / (n - 1), so sd(s) ~ sigma_total^2 / (s sqrt(2 (n - 1)))
         se_std.append(total / (std * np.sqrt(2 * (n_pixels - 1))))
-    means, stds, se_std = np.array(means), np.array(stds), np.array(se_std)
-    prnu = stds / means
+    mean, std = np.array(means), np.array(stds)
     return NonlinearityCurves(
         irradiance=np.asarray(irradiance, dtype=float),
-        mean_dn=means,
-        mean_se=stds / np.sqrt(n_pixels) + 0.5,  # spatial sampling + a 0.5 DN level repeatability
-        prnu=prnu,
-        prnu_se=se_std / means,
+        mean_dn=mean,
+        mean_se=std / np.sqrt(n_pixels) + 0.5,  # spatial sampling + a 0.5 DN level repeatability
+        prnu=std / mean,
+        prnu_se=np.array(se_std) / mean,
         full_scale=full_scale,
     )
 
@@ -189,7 +190,7 @@ def compare_nonlinearity(curves: NonlinearityCurves) -> dict:
     log_ev = np.array([fits[m]["log_evidence"] for m in MODELS])
     w = np.exp(log_ev - np.max(log_ev))
     probs = dict(zip(MODELS, (w / w.sum()).tolist(), strict=True))
-    chosen = max(probs, key=probs.get)
+    chosen = max(probs, key=lambda m: probs[m])
     theta = fits[chosen]["theta"]
     cov = fits[chosen]["cov"]
     names = _PARAMS[chosen]

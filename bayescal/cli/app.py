@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+from typing import NoReturn
 
 from bayescal.cli.parser import build
 
@@ -40,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGINT, previous)
 
 
-def _interrupted(*_) -> None:
+def _interrupted(*_) -> NoReturn:
     """Ctrl-C: remove staged outputs and leave at once with status 130.
 
     Installed as the SIGINT handler rather than left to ``KeyboardInterrupt``,

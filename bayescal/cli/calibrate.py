@@ -75,7 +75,7 @@ def cmd_demo(args) -> int:
     from bayescal.io.resources import models_dir
 
     design = load_design(models_dir() / "seed000_design.toml")
-    spec = load_spec(design.spec)
+    spec = load_spec(design.spec or models_dir() / "seed000_bayer.toml")
     out = check_output_dir(args.out, "fit")
     sim = simulate(spec, design, seed=args.seed)
     print(f"Simulated the seed 000 Bayer CCD: {len(sim.table)} rows, sphere scale error {sim.sphere_scale - 1:+.2%}")

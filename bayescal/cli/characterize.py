@@ -20,11 +20,11 @@ def cmd_characterize(args) -> int:
     steps = load_steps(example_path(args.input, "data"))
     stage("standard method and posteriors")
     res = characterize(steps, seed=args.seed)
-    with staged_directory(out, kind="characterization") as stage:
-        res.table.to_csv(stage("characterization.csv"), index=False, float_format="%.8g")
-        write_json_atomic(stage("characterization.json"), res.to_dict())
-        res.curves.to_csv(stage("curves.csv"), index=False, float_format="%.8g")
-        plot_curves(res, stage("photon_transfer.png"))
+    with staged_directory(out, kind="characterization") as staged:
+        res.table.to_csv(staged("characterization.csv"), index=False, float_format="%.8g")
+        write_json_atomic(staged("characterization.json"), res.to_dict())
+        res.curves.to_csv(staged("curves.csv"), index=False, float_format="%.8g")
+        plot_curves(res, staged("photon_transfer.png"))
     print(f"EMVA 1288 characterisation of {args.input} (standard point estimate | posterior median [95 %]):")
     print(res.table.to_string(index=False, float_format="%.5g"))
     verdict = {True: "compatible", False: "NOT compatible", None: "not determined (one dark exposure time)"}[

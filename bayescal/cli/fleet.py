@@ -74,7 +74,7 @@ def cmd_fleet_query(args) -> int:
             lo, med, hi = np.quantile(v, [0.025, 0.5, 0.975])
             name = "gain A1" if kind == "log_gain" else ("offset A0" if kind == "offset" else kind)
             print(f"  {ch} {name}: {med:.6g} [{lo:.6g}, {hi:.6g}]")
-    if args.drift_percent is not None:
+    if args.drift_percent is not None and camera is not None:  # a camera is required above
         p = fleet.drift_probability(camera, args.date, args.drift_percent, seed=args.seed)
         print(f"P(gain drifted by more than {args.drift_percent:g} % by {args.date}) = {p:.3f}")
         rel = fleet.drift_probability(camera, args.date, args.drift_percent, seed=args.seed, relative=True)

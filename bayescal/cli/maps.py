@@ -52,9 +52,9 @@ def _of_source(message: str, scratch: Path, source: Path) -> str:
     """A message about the stacks written from ``source``, told in terms of ``source``."""
     import re
 
-    scratch = re.escape(str(scratch))
-    message = re.sub(scratch + r"/conditions\.csv row \d+", f"{source} (as stacks)", message)
-    return re.sub(scratch + r"/?", f"{source} (as stacks): ", message)
+    where = re.escape(str(scratch))
+    message = re.sub(where + r"/conditions\.csv row \d+", f"{source} (as stacks)", message)
+    return re.sub(where + r"/?", f"{source} (as stacks): ", message)
 
 
 def _maps(args, stage, manifest) -> int:
@@ -91,7 +91,7 @@ def _maps(args, stage, manifest) -> int:
             channel=args.channel,
         )
         with progress_bar(1, "row blocks", quiet=args.quiet) as tick:
-            advance = tick if tick is None else (lambda done, total: tick(done, total))
+            advance = tick
 
             if args.netcdf:
                 ds = build_maps(manifest, **kw)

@@ -11,7 +11,7 @@ __all__ = ["progress_bar", "stage_reporter"]
 
 
 @contextmanager
-def progress_bar(total: int, desc: str, quiet: bool = False) -> Iterator[Callable[[int], None] | None]:
+def progress_bar(total: int, desc: str, quiet: bool = False) -> Iterator[Callable[..., None] | None]:
     """Yield ``tick(done, new_total=None)`` that advances a tqdm bar to ``done``, or None when quiet.
 
     tqdm draws nothing when stderr is not a terminal (``disable=None``).

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -135,7 +136,7 @@ def uncertainty_budget_film(spec: FilmSpec, band: str, n: int = 20000, seed: int
     b = spec.band(band)
     rng = np.random.default_rng(seed)
     parts = {"alpha": b.u_alpha, "beta": b.u_beta, "tau_max": b.u_tau, "meter": b.u_meter, "wedge": spec.u_wedge}
-    rows = []
+    rows: list[dict[str, Any]] = []
     total_var = 0.0
     for name, u in parts.items():
         if name == "wedge":  # a step relative to the reference step: two independent transmittances

@@ -68,7 +68,7 @@ class FilmCalibration:
             raise PosteriorError(f"{path} was not written by a film fit (no kind = 'film' posterior)")
         post = tree["posterior"]
         bands = [str(b) for b in post["band"].values]
-        draws = {}
+        draws: dict[str, dict[str, np.ndarray]] = {}
         for i, b in enumerate(bands):
             draws[b] = {}
             for k in ("gamma", "D0", "density_sd", "L_steps"):

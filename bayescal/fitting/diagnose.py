@@ -280,9 +280,9 @@ def range_check(table: MeasurementTable, spec: ModelSpec, result: Fit, seed: int
     except Exception as exc:  # too few levels below the cut for the response's order: nothing to compare
         info["skipped"] = str(exc)
         return [], info
-    if sub.posterior is None:
+    if sub.posterior is None or result.posterior is None:
         return [], info
-    a_all, a_low = (np.asarray(f.posterior["posterior"]["A_rel"])[..., 1] for f in (result, sub))
+    a_all, a_low = (np.asarray(tree["posterior"]["A_rel"])[..., 1] for tree in (result.posterior, sub.posterior))
     mean_all, mean_low = a_all.mean(axis=(0, 1)), a_low.mean(axis=(0, 1))
     sd = np.sqrt(np.maximum(a_low.var(axis=(0, 1)) - a_all.var(axis=(0, 1)), 0.05 * a_low.var(axis=(0, 1))))
     z = (mean_all - mean_low) / sd
@@ -348,7 +348,11 @@ def fit_diagnosed(
     spec, domain, laplace = decide_domain(table, spec, seed)
     if laplace is None and backend == "laplace":
         laplace = fit(table, spec, backend, seed=seed, stage=stage, **kw)
-    first = laplace if backend == "laplace" else fit(table, spec, backend, seed=seed, stage=stage, **kw)
+    first = (
+        laplace
+        if backend == "laplace" and laplace is not None
+        else fit(table, spec, backend, seed=seed, stage=stage, **kw)
+    )
     if domain is not None:
         first = replace(first, diagnostics=first.diagnostics.with_check("domain", [], domain))
     if first.ok or not _misfit_only(first):

@@ -21,7 +21,7 @@ import pandas as pd
 import xarray as xr
 
 from bayescal._version import __version__
-from bayescal.errors import FitFailedError, FitFailedWarning
+from bayescal.errors import FitFailedError, FitFailedWarning, PosteriorError
 from bayescal.fitting.holdout import holdout_checks
 from bayescal.fitting.misfit import MisfitThresholds, misfit_checks
 from bayescal.inference import registry as backends
@@ -118,7 +118,7 @@ class Fit:
         for ci, channel in enumerate(self.model.layout.channels):
             lrow = at_ref[at_ref["channel"] == channel] if len(at_ref) else at_ref
             for k in range(order + 1):
-                row = {"channel": channel, "coefficient": f"A{k}"}
+                row: dict[str, object] = {"channel": channel, "coefficient": f"A{k}"}
                 if len(lrow):
                     r = lrow.iloc[0]
                     row.update(lsq=r[f"A{k}"], lsq_lo=r[f"A{k}_lo"], lsq_hi=r[f"A{k}_hi"], lsq_r2=r["r2"])
@@ -137,6 +137,8 @@ class Fit:
 
     def draws(self, name: str) -> np.ndarray:
         """Draws of one posterior variable, flattened over chains: shape ``(n_draws, ...)``."""
+        if self.posterior is None:
+            raise PosteriorError(f"a {self.backend} fit has no posterior draws (of '{name}' or any other quantity)")
         arr = np.asarray(self.posterior["posterior"][name])
         return arr.reshape((-1,) + arr.shape[2:])
 

@@ -45,7 +45,7 @@ def order_candidates(
                 out[f"order {o}, nonlinearity of the {other}"] = spec.replace(
                     response={"order": o, "nonlinearity_domain": other}
                 )
-    switches = {
+    switches: dict[str, dict[str, dict]] = {
         "level_errors": {"sphere": {"per_level_rel": 0.0}},
         "excess": {"noise": {"excess_dn": 0.0}},
         "exposure_slope": {"dark": {"exposure_slope": False}},

@@ -142,7 +142,7 @@ class Plan:
 
     def sampled(self) -> dict[str, int]:
         """The scales NUTS samples and their sizes."""
-        out = {}
+        out: dict[str, int] = {}
         if self.pooling == "partial":
             out |= {"sigma_camera": self.n_kinds, "sigma_channel": self.n_kinds}
             if self.drift:
@@ -346,7 +346,7 @@ def _blocks(plan: Plan, h_g, h_m, cov, y, camera):
     def both(a, b, form):  # the ordered pairs (a, b) and (b, a) share the weight f_a f_b
         return form(a, b) + (form(b, a) if a != b else 0.0)
 
-    out = {name: [] for name in ("g_gg", "g_gm", "g_mm", "b_g", "b_m", "yy")}
+    out: dict[str, list] = {name: [] for name in ("g_gg", "g_gm", "g_mm", "b_g", "b_m", "yy")}
     for a, b in plan.pairs:
         out["g_gg"].append(both(a, b, lambda i, j: np.einsum("kuci,kucd,kudj->kij", x_g[i], prec, x_g[j])))
         out["g_gm"].append(both(a, b, lambda i, j: np.einsum("kuci,kucd,kudj,um->kmij", x_g[i], prec, x_m[j], onehot)))
@@ -409,9 +409,9 @@ def _design(plan: Plan, camera, sphere, t, walk_units, walk_dt, walk_slot, unit_
                 if drifting:
                     h_g[k, u, c, c_n] = t[u]  # rho
                     h_m[k, u, c, r_slot] = t[u]  # r
-                    for j in np.flatnonzero(camera[walk_units] == m):
-                        if t[walk_units[j]] <= t[u]:
-                            h_m[k, u, c, w_base + walk_slot[j]] = np.sqrt(walk_dt[j])
+                    for w in np.flatnonzero(camera[walk_units] == m):
+                        if t[walk_units[w]] <= t[u]:
+                            h_m[k, u, c, w_base + walk_slot[w]] = np.sqrt(walk_dt[w])
                     if plan.jitter:
                         h_m[k, u, c, plan.jitter_base + unit_slot[u]] = 1.0  # this campaign's own state
                 if k == 0:
@@ -423,8 +423,8 @@ def _design(plan: Plan, camera, sphere, t, walk_units, walk_dt, walk_slot, unit_
         active[k, :, : 1 + c_n] = 1.0
         if drifting:
             active[k, :, r_slot] = 1.0
-            for j, v in enumerate(walk_units):
-                active[k, camera[v], w_base + walk_slot[j]] = 1.0
+            for j, walker in enumerate(walk_units):
+                active[k, camera[walker], w_base + walk_slot[j]] = 1.0
             if plan.jitter:
                 for u in range(plan.n_units):
                     active[k, camera[u], plan.jitter_base + unit_slot[u]] = 1.0

@@ -550,7 +550,7 @@ class FleetFit:
                 f"{file} is not a fleet posterior written by bayescal ({type(exc).__name__}: {exc})"
             ) from None
         units["campaign"] = units["campaign"].where(units["campaign"].notna() & (units["campaign"] != "None"), None)
-        draws = {k: np.asarray(ds[k]) for k in ds.data_vars if "chain" in ds[k].dims and k != "log_likelihood"}
+        draws = {str(k): np.asarray(ds[k]) for k in ds.data_vars if "chain" in ds[k].dims and k != "log_likelihood"}
         years = np.asarray(ds["data_years"], dtype=float)
         empty = np.zeros((0,))
         data = FleetData(
@@ -657,12 +657,14 @@ def fit_fleet(
 
 
 @computes
-def compare_pooling(fleet: FleetTable, spec: ModelSpec, fits: UnitFits, seed: int = 0) -> pd.DataFrame:
+def compare_pooling(fleet: FleetTable, spec: ModelSpec, fits: UnitFits | None = None, seed: int = 0) -> pd.DataFrame:
     """No, partial and complete pooling compared by PSIS leave-one-unit-out (stage one shared).
 
     Columns: ``elpd_loo``, ``se``, ``elpd_diff`` (minus the best), ``p_loo``, ``n_high_k``,
-    ``divergences``; one row per pooling, best first.
+    ``divergences``; one row per pooling, best first.  ``fits``: stage one, fitted here when not given.
     """
+    if fits is None:
+        fits = fit_units(fleet, spec, seed=seed)
     rows = {}
     for pooling in ("none", "partial", "complete"):
         s = spec.replace(fleet={"pooling": pooling})

@@ -167,12 +167,12 @@ def _fig_drift(fleet: FleetFit) -> str:
         ref = np.exp(fleet.unit_values()[:, units[0], k, c])
         base = np.median(ref)
         grid = np.linspace(years[0], years[-1] + AHEAD_YEARS, 25)
-        band = []
+        quantiles = []
         for t in grid:
             date = fleet.origin + pd.Timedelta(days=float(t) * 365.25)
             v = np.exp(fleet.at(name, date, seed=fleet.seed)[:, k, c]) / base - 1.0
-            band.append(np.quantile(v, [0.025, 0.5, 0.975]))
-        band = 100 * np.asarray(band)
+            quantiles.append(np.quantile(v, [0.025, 0.5, 0.975]))
+        band = 100 * np.asarray(quantiles)
         ax.fill_between(grid, band[:, 0], band[:, 2], color=colours()[0], alpha=0.25, lw=0)
         ax.plot(grid, band[:, 1], color=colours()[0], lw=1)
         vals = np.exp(fleet.unit_values()[:, units, k, c]) / base - 1.0

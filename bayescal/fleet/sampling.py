@@ -48,7 +48,7 @@ class FleetDraws:
 THREADS = 2
 
 
-def scale_priors(plan: Plan) -> dict[str, float]:
+def scale_priors(plan: Plan) -> dict[str, float | np.ndarray]:
     """The half-normal prior scale of every sampled scale of stage two (of ``kappa - 1`` for the
     excess: one per kind and direction, :meth:`~.model.Plan.excess_priors`)."""
     return {
@@ -300,6 +300,7 @@ def _run_chains(
         divergences = int(sum(np.sum(np.asarray(o[3])) for o in outs))
         gradients = int(sum(np.sum(np.asarray(o[4])) for o in settle + warm + outs))
         for i in range(spec.extend if inference is not None else 0):
+            assert inference is not None  # the loop runs only with it
             so_far = np.stack([np.concatenate(c) for c in z])
             if _mixed(
                 _convergence(_unpack(plan, so_far, args["walk_interval"])), inference
@@ -328,10 +329,10 @@ def sample_fleet(
     args = data.arrays()
     chains, n = spec.chains, spec.draws
     sampled = plan.sampled()
-    first = None
+    first, retried_at = None, 0.0
     if sampled:
         z, divergences, gradients = _run_chains(plan, spec, args, seed, inference)
-        retry = inference.retry_target_accept if inference is not None else 0.0
+        retry = retried_at = inference.retry_target_accept if inference is not None else 0.0
         if divergences and retry > spec.target_accept:  # new chains with smaller steps, as a unit's fit does
             first = divergences
             z, divergences, more = _run_chains(plan, replace(spec, target_accept=retry), args, seed + 1, inference)
@@ -343,8 +344,8 @@ def sample_fleet(
         divergences = gradients = 0
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xF1EE7]))
     if not hyper:
-        g, cam = zip(*(conditional_draws(plan, {}, args, rng) for _ in range(chains * n)), strict=True)
-        g, cam = np.concatenate(g), np.concatenate(cam)
+        parts = [conditional_draws(plan, {}, args, rng) for _ in range(chains * n)]
+        g, cam = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
     else:
         g, cam = _latents(plan, hyper, args, rng)
     draws = {k: v.reshape(chains, n, -1) for k, v in hyper.items()}
@@ -363,7 +364,7 @@ def sample_fleet(
     diagnostics = {"divergences": divergences, "gradients": gradients} | judged
     if first is not None:  # the retry's diagnostics decide the verdict; the first run's count is kept
         diagnostics["first_divergences"] = first
-        diagnostics["retried_at"] = inference.retry_target_accept
+        diagnostics["retried_at"] = retried_at
     return FleetDraws(draws, ll.reshape(chains, n, -1), diagnostics)
 
 

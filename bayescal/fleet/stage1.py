@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from bayescal.fitting.batch import FitBatch, fit_many
 from bayescal.fitting.result import Fit
 from bayescal.fleet.units import FleetTable
 from bayescal.model.spec import ModelSpec
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["UnitFits", "fit_units", "QUANTITIES"]
 
@@ -59,7 +63,7 @@ class UnitFits:
     channels: tuple[str, ...]
     mean: np.ndarray
     cov: np.ndarray
-    diagnostics: object
+    diagnostics: pd.DataFrame
     backend: str
     _batches: tuple[tuple[FitBatch, int], ...]
 
@@ -120,9 +124,9 @@ def fit_units(
             )
     n_eta = spec.response.order - 1
     kinds = QUANTITIES + tuple(f"eta{k + 1}" for k in range(n_eta))
+    fitted = [b for b in batches if b is not None]  # every unit is in one group
     means, covs, rows = [], [], []
-    for u, unit in enumerate(units):
-        batch, i = batches[u]
+    for unit, (batch, i) in zip(units, fitted, strict=True):
         phys = batch.physical(i)
         vec = _quantities(phys, n_eta, unit.label)  # (S, K, C)
         mean, cov = _likelihood(vec, spec.response.nonlinearity_prior_sd, n_eta)
@@ -148,7 +152,7 @@ def fit_units(
         cov=np.stack(covs),
         diagnostics=pd.DataFrame(rows),
         backend=backend,
-        _batches=tuple(batches),
+        _batches=tuple(fitted),
     )
 
 

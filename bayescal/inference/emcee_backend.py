@@ -20,8 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayescal._config import computes
-from bayescal.inference.program import Program
-from bayescal.model.data import ModelData
+from bayescal.inference.program import Program, ProgramData
 from bayescal.model.spec import InferenceSpec
 
 __all__ = ["EmceeDraws", "run_emcee"]
@@ -50,7 +49,7 @@ def _log_density(program: Program):
 @computes
 def run_emcee(
     program: Program,
-    data: ModelData,
+    data: ProgramData,
     mode: np.ndarray,
     cov: np.ndarray,
     settings: InferenceSpec,

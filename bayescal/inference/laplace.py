@@ -10,14 +10,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from bayescal._config import computes
-from bayescal.inference.program import Program
-from bayescal.model.data import ModelData
+from bayescal.inference.program import Program, ProgramData
 
 __all__ = [
     "LaplaceResult",
@@ -43,7 +43,7 @@ class LaplaceResult:
 
 
 @computes
-def find_map(program: Program, data: ModelData, z0: jax.Array | None = None, rounds: int = 4):
+def find_map(program: Program, data: ProgramData, z0: np.ndarray | jax.Array | None = None, rounds: int = 4):
     """Minimise the potential: damped Newton steps in Hessian-whitened coordinates, BFGS rounds if needed.
 
     Calibration likelihoods are stiff (row precisions ~1e7 in scaled units against O(1) prior
@@ -62,18 +62,18 @@ def find_map(program: Program, data: ModelData, z0: jax.Array | None = None, rou
     z, converged, steps = _newton(program, data, z)
     if converged:
         return jnp.asarray(z), True, steps
-    z = jnp.asarray(z)
+    zj = jnp.asarray(z)
     for _ in range(rounds):
-        precond = _whitening(np.asarray(program.hessian(z, data)))
-        sol = _whitened_bfgs()(program.potential, z, jnp.asarray(precond), data)
+        precond = _whitening(np.asarray(program.hessian(zj, data)))
+        sol = _whitened_bfgs()(program.potential, zj, jnp.asarray(precond), data)
         steps += int(sol.stats["num_steps"])
-        z = z + jnp.asarray(precond) @ sol.value
-        grad = np.asarray(program.value_and_grad(z, data)[1])
+        zj = zj + jnp.asarray(precond) @ sol.value
+        grad = np.asarray(program.value_and_grad(zj, data)[1])
         step = precond.T @ grad  # gradient in whitened coordinates = Newton step length
         if float(step @ step) < 1e-8:
             converged = True
             break
-    return z, converged, steps
+    return zj, converged, steps
 
 
 #: Newton steps before the BFGS rounds take over
@@ -94,7 +94,7 @@ POLISH_STEPS = 2
 EIGENVALUE_FLOOR = 1e-13
 
 
-def _newton(program: Program, data: ModelData, z: np.ndarray) -> tuple[np.ndarray, bool, int]:
+def _newton(program: Program, data: ProgramData, z: np.ndarray) -> tuple[np.ndarray, bool, int]:
     """Damped saddle-free Newton from ``z``: ``(z, converged, steps)``.
 
     Once the squared Newton decrement is below :data:`CONVERGED_DECREMENT` the iterate is in the
@@ -166,7 +166,7 @@ def _batched_map(program: Program, rounds: int):
     """Jitted, vmapped MAP search: ``(z0 (B, d), data (B, ...)) -> (z, hessian, newton_step^2, steps)``."""
     import optimistix as optx
 
-    solver = optx.BFGS(rtol=1e-12, atol=1e-12)
+    solver: Any = optx.BFGS(rtol=1e-12, atol=1e-12)
 
     def whitened(w, args):
         z_c, precond, data = args
@@ -199,7 +199,7 @@ def _batched_map(program: Program, rounds: int):
 
 
 @computes
-def laplace(program: Program, data: ModelData, z0: jax.Array | None = None) -> LaplaceResult:
+def laplace(program: Program, data: ProgramData, z0: np.ndarray | jax.Array | None = None) -> LaplaceResult:
     """Mode and Gaussian covariance (inverse Hessian) of the posterior, searched from ``z0``."""
     z_map, converged, steps = find_map(program, data, z0)
     return _gaussian_at(program, data, z_map, converged, steps, np.asarray(program.hessian(z_map, data)))
@@ -207,7 +207,7 @@ def laplace(program: Program, data: ModelData, z0: jax.Array | None = None) -> L
 
 @computes
 def laplace_many(
-    program: Program, datas: list[ModelData], starts: list[jax.Array], rounds: int = 4, chunk: int = 16
+    program: Program, datas: list[ProgramData], starts: list[jax.Array], rounds: int = 4, chunk: int = 16
 ) -> list[LaplaceResult]:
     """:func:`laplace` for many datasets of one structure, vectorised with ``jax.vmap``.
 
@@ -232,7 +232,7 @@ def laplace_many(
     return out
 
 
-def _gaussian_at(program: Program, data: ModelData, z_map, converged: bool, steps: int, hess: np.ndarray):
+def _gaussian_at(program: Program, data: ProgramData, z_map, converged: bool, steps: int, hess: np.ndarray):
     hess = 0.5 * (hess + hess.T)
     try:
         chol = np.linalg.cholesky(hess)
@@ -276,7 +276,7 @@ def covariance_factor(cov: np.ndarray) -> np.ndarray:
 @computes
 def integrated_draws(
     program: Program,
-    data: ModelData,
+    data: ProgramData,
     result: LaplaceResult,
     index: int,
     n: int,

@@ -26,6 +26,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -53,14 +54,14 @@ class NonlinearFit:
 
 
 @lru_cache(maxsize=64)
-def _solver(model: Callable) -> Callable:
+def _solver(model: Callable) -> tuple[Callable, Callable]:
     def residual(u, args):
         scale, x, y = args
         return model(u * scale, x) - y
 
     import optimistix as optx  # on first use: a fit that needs no nonlinear least squares never imports it
 
-    solver = optx.LevenbergMarquardt(rtol=1e-14, atol=1e-14)
+    solver: Any = optx.LevenbergMarquardt(rtol=1e-14, atol=1e-14)
 
     def run(u0, scale, x, y):
         sol = optx.least_squares(residual, solver, u0, args=(scale, x, y), max_steps=5000, throw=False)
@@ -87,9 +88,9 @@ def nonlinear_lsq(model: Callable, x: np.ndarray, y: np.ndarray, start: np.ndarr
     Jacobian at the optimum by a QR decomposition.
     """
     run, jac = _solver(model)
-    x, y = jnp.asarray(x, dtype=float), jnp.asarray(y, dtype=float)
+    xj, yj = jnp.asarray(x, dtype=float), jnp.asarray(y, dtype=float)
     start = np.asarray(start, dtype=float)
-    fits = [_solve(model, run, jac, x, y, c, polish) for c in (start, np.abs(start), 10.0 * start, start / 10.0)]
+    fits = [_solve(model, run, jac, xj, yj, c, polish) for c in (start, np.abs(start), 10.0 * start, start / 10.0)]
     best = max(fits, key=lambda f: (f.converged, -f.sse if np.isfinite(f.sse) else -np.inf))
     minima = sorted({round(f.sse / max(best.sse, np.finfo(float).tiny), 6) for f in fits if f.converged})
     note = best.why

@@ -28,8 +28,7 @@ from numpyro.infer.hmc import hmc
 
 from bayescal._config import computes
 from bayescal.inference.laplace import covariance_factor
-from bayescal.inference.program import Program
-from bayescal.model.data import ModelData
+from bayescal.inference.program import Program, ProgramData
 from bayescal.model.spec import InferenceSpec
 
 __all__ = ["NutsDraws", "run_nuts", "run_nuts_many"]
@@ -121,7 +120,7 @@ def _compiled(program: Program, settings: tuple):
 @computes
 def run_nuts(
     program: Program,
-    data: ModelData,
+    data: ProgramData,
     start: jax.Array,
     cov: np.ndarray,
     settings: InferenceSpec,
@@ -151,7 +150,7 @@ def run_nuts(
 @computes
 def run_nuts_many(
     program: Program,
-    datas: list[ModelData],
+    datas: list[ProgramData],
     starts: list[jax.Array],
     covs: list[np.ndarray],
     settings: InferenceSpec,
@@ -181,7 +180,7 @@ def _run_many(program, datas, starts, covs, settings, seeds, done) -> list[NutsD
     run = _compiled(
         program, (settings.dense_mass, settings.target_accept, settings.max_tree_depth, settings.warmup, settings.draws)
     )
-    jobs = []
+    jobs: list[tuple] = []
     for data, start, cov, seed in zip(datas, starts, covs, seeds, strict=True):
         k_jit, k_chains = jax.random.split(jax.random.PRNGKey(seed))
         jitter = jax.random.uniform(k_jit, (n, np.size(start)), minval=-1.0, maxval=1.0)
@@ -209,11 +208,13 @@ def _run_many(program, datas, starts, covs, settings, seeds, done) -> list[NutsD
         pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown()
-    fields = range(len(NutsDraws._fields) - 2)
-    outs = [
-        NutsDraws(*(np.stack([np.asarray(c[k]) for c in chains[i * n : (i + 1) * n]]) for k in fields))
-        for i in range(len(datas))
-    ]
+
+    def stacked(i: int) -> NutsDraws:  # dataset i's chains: (chain, draw, ...) of each output
+        per = chains[i * n : (i + 1) * n]
+        z, diverging, steps, accept, energy, step = (np.stack([np.asarray(c[k]) for c in per]) for k in range(6))
+        return NutsDraws(z, diverging, steps, accept, energy, step)
+
+    outs = [stacked(i) for i in range(len(datas))]
     again = [i for i, o in enumerate(outs) if o.diverging.any()]
     target = settings.retry_target_accept
     if settings.target_accept >= target > 0:  # the spec's retry was this run: one last, smaller-step one

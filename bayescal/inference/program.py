@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -37,6 +38,10 @@ _CACHE: OrderedDict[tuple, Program] = OrderedDict()
 def clear_program_cache() -> None:
     """Forget the cached programs (see :func:`bayescal._caches.clear_caches`)."""
     _CACHE.clear()
+
+
+#: a program's data: any pytree of arrays (a calibration's ``ModelData``, a film's or a regression's tuple)
+ProgramData = Any
 
 
 @dataclass(frozen=True, eq=False)

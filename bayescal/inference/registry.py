@@ -59,8 +59,13 @@ class Backend(Protocol):
     draws (a :class:`~bayescal.inference.diagnostics.Diagnostics`).
     """
 
-    name: str
-    batched: bool  # runs many datasets together (vectorised, or on one thread pool) rather than in turn
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def batched(self) -> bool:
+        """Runs many datasets together (vectorised, or on one thread pool) rather than in turn."""
+        ...
 
     def sample_many(
         self, models, program, modes, seeds, *, progress=None, iterations=None, stage=None
@@ -72,6 +77,10 @@ class Backend(Protocol):
 class OneByOne:
     """``sample_many`` for a backend that samples one dataset at a time with
     ``sample(model, program, mode, seed, iterations, stage)``."""
+
+    def sample(self, model, program, mode, seed: int, progress, stage) -> Draws:
+        """One dataset's draws (``progress(iterations_done)`` or None; ``stage(message)``)."""
+        raise NotImplementedError
 
     def sample_many(self, models, program, modes, seeds, *, progress=None, iterations=None, stage=None) -> list[Draws]:
         stage = stage or (lambda message: None)

@@ -9,6 +9,8 @@ the residuals.
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -64,6 +66,6 @@ def _dark_offsets(d: dict, dark: np.ndarray, c: int, g: int, prop: bool) -> np.n
     return np.where(np.isfinite(b0), b0, fallback)
 
 
-def _constrained_defaults(program: Program, model: CalibrationModel) -> dict[str, np.ndarray]:
+def _constrained_defaults(program: Program, model: CalibrationModel) -> dict[str, Any]:
     z0 = program.constrain(program.z0[None], model.data)
     return {k: np.asarray(v)[0] for k, v in z0.items()}

@@ -107,7 +107,7 @@ class Design:
         if self.n_frames < 1 or self.n_pixels < 1:
             raise SpecError("n_frames and n_pixels must be >= 1")
         for block in self.illuminated:
-            for i in block.levels or ():
+            for i in block.levels if isinstance(block.levels, tuple) else ():
                 if not 0 <= i < len(self.levels):
                     raise SpecError(f"level index {i} outside 0..{len(self.levels) - 1}")
 

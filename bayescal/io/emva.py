@@ -85,11 +85,11 @@ def reduce_stack(frames, progress: Callable[[int], None] | None = None) -> dict:
     ``s2_spatial = var(mean image) - s2_temporal / L``), and the temporal
     variance.
     """
-    n, mean, m2 = 0, None, None
+    n, mean, m2 = 0, np.zeros(0), np.zeros(0)
     for frame in frames:
         x = np.asarray(frame, dtype=np.float64)
         n += 1
-        if mean is None:
+        if n == 1:
             mean, m2 = np.zeros_like(x), np.zeros_like(x)
         delta = x - mean
         mean += delta / n
@@ -149,7 +149,7 @@ class ImageGroup:
             the group's first image), or values outside ``0 .. 2**bits - 1``.
         """
         full = 2**bits - 1
-        out = []
+        out: list[np.ndarray] = []
         for image, frame in zip(self.images, self.frames(), strict=True):
             name = image.name if isinstance(image, Path) else f"image {len(out)}"
             if frame.ndim != 2 or (shape is not None and frame.shape != shape):

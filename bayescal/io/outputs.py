@@ -33,7 +33,7 @@ import signal
 import tempfile
 import threading
 import uuid
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -286,8 +286,22 @@ def check_output_dir(out_dir: str | os.PathLike, kind: str) -> Path:
     return out_dir
 
 
+@dataclass(frozen=True)
+class Stage:
+    """``stage(name) -> Path``: where a staged run writes ``name`` (its folders made); ``root`` is the
+    staged folder itself (for stores such as zarr), ``run_id`` the run's id."""
+
+    root: Path
+    run_id: str
+
+    def __call__(self, name: str) -> Path:
+        path = self.root / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return path
+
+
 @contextlib.contextmanager
-def staged_directory(out_dir: str | os.PathLike, kind: str) -> Iterator[Callable[[str], Path]]:
+def staged_directory(out_dir: str | os.PathLike, kind: str) -> Iterator[Stage]:
     """Stage a folder of outputs, then put it in place of ``out_dir`` as a whole, only on success.
 
     Yields ``stage(name) -> Path``: a path to write ``name`` to (``stage.root`` is the
@@ -305,13 +319,7 @@ def staged_directory(out_dir: str | os.PathLike, kind: str) -> Iterator[Callable
     _STAGING.add(staging)
     run_id = uuid.uuid4().hex
 
-    def stage(name: str) -> Path:
-        path = staging / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        return path
-
-    stage.root = staging  # type: ignore[attr-defined]
-    stage.run_id = run_id  # type: ignore[attr-defined]
+    stage = Stage(staging, run_id)
     old = None
     try:
         yield stage

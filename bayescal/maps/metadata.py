@@ -12,6 +12,7 @@ import datetime as _dt
 import hashlib
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -34,7 +35,7 @@ _LONG = {
 def variable_attrs(name: str) -> dict:
     base = name.removeprefix("u_random_").removeprefix("lsq_")
     if name in _UNITS:
-        attrs = {"units": _UNITS[name], "long_name": _LONG[name] + ", posterior mean"}
+        attrs: dict[str, Any] = {"units": _UNITS[name], "long_name": _LONG[name] + ", posterior mean"}
         comps = [f"u_random_{name}"]
         if name == "relative_gain":
             comps.append("u_systematic_relative_gain")
@@ -49,7 +50,7 @@ def variable_attrs(name: str) -> dict:
         }
     if name.startswith("lsq_"):
         return {"units": _UNITS[base], "long_name": f"{base}, per-pixel weighted least squares (baseline)"}
-    return {
+    derived: dict[str, dict[str, Any]] = {
         "corr_offset_dark": {"units": "1", "long_name": "posterior correlation of offset and dark current"},
         "defect_probability": {"units": "1", "long_name": "posterior probability that the pixel is defective"},
         "noisy_probability": {"units": "1", "long_name": "posterior probability of excess temporal noise"},
@@ -59,7 +60,8 @@ def variable_attrs(name: str) -> dict:
             "flag_values": list(DEFECT_CODES),
             "flag_meanings": " ".join(DEFECT_CODES.values()),
         },
-    }[name]
+    }
+    return derived[name]
 
 
 def provenance(manifest: Manifest, sensor: SensorModel, calibration: str | None) -> dict:

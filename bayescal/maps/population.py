@@ -33,7 +33,7 @@ chi-square with ``sum_s (n_s - 1)`` degrees of freedom for a normal pixel and
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import linalg, special
@@ -300,7 +300,7 @@ def mixture_posterior(comps, log_weights, theta, phi, xp=np) -> PixelPosterior:
     norm = xp.logaddexp(logp[0], logp[1])
     q = [xp.exp(lp - norm) for lp in logp]
     mean = q[0] * terms[0][1] + q[1] * terms[1][1]
-    cov = 0.0
+    cov: Any = 0.0
     for k in range(2):
         d = terms[k][1] - mean
         cov = cov + q[k] * (comps[k].cov(terms[k][2], xp) + d[:, None, :] * d[None, :, :])

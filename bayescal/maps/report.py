@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -48,7 +49,7 @@ def _histogram(da, bins: np.ndarray) -> np.ndarray:
     return counts
 
 
-def _channel_views(ds) -> list[tuple[str, object, dict]]:
+def _channel_views(ds) -> list[tuple[str, Any, dict]]:
     """``[(channel, its pixels' maps, its population attributes)]`` (a mosaic: each colour's first plane)."""
     from bayescal.io.cfa import planes
     from bayescal.maps.metadata import channel_attrs

@@ -336,7 +336,9 @@ def write_emva_stacks(
                     "give one dark group per exposure"
                 )
             darks[condition(g)] = g
-    shape, rows, written = None, [], set()
+    shape = None
+    rows: list[dict] = []
+    written: set = set()
     flats = [g for g in groups if g.kind == "bright"]
     for k, g in enumerate(flats):
         if condition(g) not in darks:

@@ -209,4 +209,5 @@ def _write_rows(block: np.ndarray, store: str, names, r0: int, r1: int) -> None:
     group = zarr.open_group(store, mode="r+")
     for k, name in enumerate(names):
         array = group[name]
+        assert isinstance(array, zarr.Array), f"{store}/{name} is not an array"  # the layout wrote arrays
         array[r0:r1, :] = block[k].astype(array.dtype)

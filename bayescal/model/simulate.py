@@ -178,7 +178,7 @@ def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndar
 
 def _effect_factors(truth: Truth, rows: pd.DataFrame, spec: ModelSpec) -> np.ndarray | float:
     """The true factors of the optional effects named in the truth (``[truth.effects.<section>]``)."""
-    factor = 1.0
+    factor: np.ndarray | float = 1.0
     for section, params in truth.effects.items():
         try:
             cls = effect(section)
@@ -217,7 +217,7 @@ def _dark(truth: Truth, g: np.ndarray, spec: ModelSpec) -> tuple[np.ndarray, np.
         off = truth.dark_offset.get(ref, next(iter(truth.dark_offset.values())))
         return np.full(g.shape, off), np.full(g.shape, truth.dark_slope.get(ref, 0.0))
     try:
-        off = np.array([truth.dark_offset[gi] for gi in g])
+        offsets = np.array([truth.dark_offset[gi] for gi in g])
     except KeyError as exc:
         raise SpecError(f"truth.dark_offset has no entry for gain {exc.args[0]:g}") from None
-    return off, np.array([truth.dark_slope.get(gi, 0.0) for gi in g])
+    return offsets, np.array([truth.dark_slope.get(gi, 0.0) for gi in g])

@@ -268,7 +268,7 @@ class ModelSpec:
     def to_dict(self) -> dict[str, Any]:
         """Nested dict in the TOML layout."""
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "effects"}
-        out = {k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v for k, v in out.items()}
+        out = {k: dataclasses.asdict(v) if _instance(v) else v for k, v in out.items()}
         return out | {name: dataclasses.asdict(section) for name, section in self.effects}
 
     def to_toml(self) -> str:
@@ -283,7 +283,7 @@ class ModelSpec:
         changes, effects = {}, dict(self.effects)
         for key, value in sections.items():
             current = effects[key] if key in effects else getattr(self, key)
-            if isinstance(value, dict) and dataclasses.is_dataclass(current):
+            if isinstance(value, dict) and _instance(current):
                 value = dataclasses.replace(current, **value)
             if key in effects:
                 effects[key] = value
@@ -297,6 +297,11 @@ class ModelSpec:
         for key in ("name", "description", "inference", "fleet"):
             d.pop(key)
         return hashlib.sha1(dumps(d).encode()).hexdigest()[:16]
+
+
+def _instance(value: Any) -> bool:
+    """A dataclass instance (a spec section), not a dataclass type."""
+    return dataclasses.is_dataclass(value) and not isinstance(value, type)
 
 
 def load_spec(path: str | os.PathLike) -> ModelSpec:

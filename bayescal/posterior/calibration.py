@@ -197,9 +197,9 @@ class Calibration:
         post = dt["posterior"]
         frame = dt["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
         frame = frame.rename(columns={spec.stimulus: "stimulus"})
-        channels = tuple(str(c) for c in post["channel"].values)
-        gains = tuple(float(g) for g in post["gain_setting"].values) if "gain_setting" in post.coords else ()
-        draws = {k: np.asarray(post[k]) for k in post.data_vars}
+        channels = tuple(str(c) for c in np.asarray(post["channel"]))
+        gains = tuple(float(g) for g in np.asarray(post["gain_setting"])) if "gain_setting" in post.coords else ()
+        draws = {str(k): np.asarray(post[str(k)]) for k in post.data_vars}
         return cls._from_draws(spec, draws, channels, gains, frame, source=str(path))
 
     @classmethod

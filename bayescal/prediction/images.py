@@ -86,7 +86,7 @@ def invert_image(
         }
     )
     if image.ndim == 3:
-        ds = ds.assign_coords(channel=list(channels))
+        ds = ds.assign_coords(channel=[name for _, name in views])
     ds.attrs.update(
         stimulus=cal.stimulus,
         unit=cal.unit,
@@ -125,6 +125,7 @@ def channel_views(
         raise SpecError("channels= is for (H, W, C) stacks; use cfa= or channel= for a 2-D image")
     if cfa is not None:
         return [((slice(dy, None, 2), slice(dx, None, 2)), name) for (dy, dx), name in cfa_cells(cfa).items()]
+    assert channel is not None  # exactly one of the three was given
     return [((Ellipsis,), channel)]
 
 

@@ -194,7 +194,7 @@ def invert(
         present = np.flatnonzero(np.bincount(values.ravel(), minlength=1))
         lut = np.full((5, int(present.max(initial=0)) + 1), np.nan)
         lut[:, present] = value_summaries(cal, channel, present.astype(float), setting, n_avg, prnu, level, noise, seed)
-        gathered = [np.take(row, values) for row in lut]
+        gathered = np.stack([np.take(row, values) for row in lut])
     else:
         unique, index = np.unique(values.ravel(), return_inverse=True)
         stats = value_summaries(cal, channel, unique, setting, n_avg, prnu, level, noise, seed)

@@ -19,6 +19,7 @@ then fewer TDI stages.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -78,8 +79,8 @@ def plan_exposure(
     current: Setting | None = None,
     stimulus: float | None = None,
     exposures: list[float],
-    gains: list[float] = (1.0,),
-    tdi_stages: list[float] = (1.0,),
+    gains: Sequence[float] = (1.0,),
+    tdi_stages: Sequence[float] = (1.0,),
     window: tuple[float, float] | None = None,
     n_avg: float = 1.0,
     allow_extrapolation: bool = True,
@@ -94,11 +95,13 @@ def plan_exposure(
     """
     if (dn is None) == (stimulus is None):
         raise SpecError("give the scene as dn= (with current=) or as stimulus=, not both")
-    window = tuple(window) if window is not None else default_window(cal.bits)
-    if not (len(window) == 2 and 0 <= window[0] < window[1] <= cal.full_scale):
-        raise SpecError(f"window must be (low, high) DN with 0 <= low < high <= {cal.full_scale:g}, got {window}")
+    bounds = tuple(window) if window is not None else default_window(cal.bits)
+    if not (len(bounds) == 2 and 0 <= bounds[0] < bounds[1] <= cal.full_scale):
+        raise SpecError(f"window must be (low, high) DN with 0 <= low < high <= {cal.full_scale:g}, got {bounds}")
+    low, high = float(bounds[0]), float(bounds[1])
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x9A1]))
-    if dn is not None:
+    if stimulus is None:  # the scene is a reading
+        assert dn is not None  # one of the two is given (checked above)
         if current is None:
             raise SpecError("dn= needs the current= setting it was read at")
         if dn >= cal.saturation_dn:
@@ -130,7 +133,7 @@ def plan_exposure(
                 "exposure_s": setting.exposure_s,
                 "gain": setting.gain,
                 "tdi_stages": setting.tdi_stages,
-                "p_in_window": float(np.mean((reading >= window[0]) & (reading <= window[1]))),
+                "p_in_window": float(np.mean((reading >= low) & (reading <= high))),
                 "dn_median": med,
                 "dn_lo": lo,
                 "dn_hi": hi,
@@ -144,4 +147,4 @@ def plan_exposure(
     table = pd.DataFrame(rows).sort_values(
         ["p_in_window", "gain", "exposure_s", "tdi_stages"], ascending=[False, True, True, True], kind="stable"
     )
-    return Plan(table.reset_index(drop=True), stim, window, channel)
+    return Plan(table.reset_index(drop=True), stim, (low, high), channel)

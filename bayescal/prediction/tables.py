@@ -108,6 +108,10 @@ def _store(cal: Calibration) -> dict:
     return cal.tables  # the calibration's own cache: {TableKey: records, _GROWN: {TableKey}}
 
 
+#: no values to compute: a table as far as it is known
+_NOTHING = np.zeros(0, np.int64)
+
+
 def table(cal: Calibration, key: TableKey, values: np.ndarray | None = None) -> np.ndarray:
     """The records ``(full_scale + 1,)`` of ``key``, computed for (at least) the integer ``values``.
 
@@ -161,7 +165,7 @@ def fill(
 
 def _cell_offsets(shape: tuple[int, ...], views: list[tuple[tuple, str]], names: list[str], size: int) -> np.ndarray:
     """Each pixel's table offset over one block of ``_ROWS`` rows: the channel layout's period, tiled."""
-    period = (2, 2) if any(isinstance(index[0], slice) for index, _ in views) else (1, 1)
+    period: tuple[int, ...] = (2, 2) if any(isinstance(index[0], slice) for index, _ in views) else (1, 1)
     period = period + shape[2:]
     cells = np.zeros(period, np.int32)
     for index, name in views:
@@ -213,13 +217,13 @@ def gather(
                 return np.sum(list(pool.map(block, starts)), axis=0)
         return np.sum([block(s) for s in starts], axis=0)
 
-    if not all(table(cal, k, [])["known"].all() for k in keys):  # a first pass finds the values to compute
+    if not all(table(cal, k, _NOTHING)["known"].all() for k in keys):  # a first pass finds the values to compute
         present = run().reshape(len(names), size) > 0
         for k, p in zip(keys, present, strict=True):
             table(cal, k, np.flatnonzero(p))
-    stacked = np.concatenate([table(cal, k, []) for k in keys]).view(np.complex128)
+    stacked = np.concatenate([table(cal, k, _NOTHING) for k in keys]).view(np.complex128)
     counts = run()  # the gather, with the histogram that counts the flags
-    flags = np.concatenate([table(cal, k, [])[["bound", "extrapolated"]] for k in keys])
+    flags = np.concatenate([table(cal, k, _NOTHING)[["bound", "extrapolated"]] for k in keys])
     return out, {
         "clipped": int(counts[flags["bound"] == 1].sum()),
         "below_dark": int(counts[flags["bound"] == 2].sum()),

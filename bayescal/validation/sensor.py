@@ -22,6 +22,7 @@ frames, and a ``conditions.csv`` manifest names each stack.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -79,7 +80,7 @@ class SensorTruth:
     sensor: PixelSensor = field(repr=False, default_factory=PixelSensor)
 
 
-def _truth(sensor: PixelSensor, rng: np.random.Generator) -> tuple[SensorTruth, np.ndarray]:
+def _truth(sensor: PixelSensor, rng: np.random.Generator) -> tuple[SensorTruth, tuple[np.ndarray, np.ndarray]]:
     shape = (sensor.height, sensor.width)
     gain = 1.0 + sensor.prnu * rng.standard_normal(shape)
     offset = sensor.offset_dn + sensor.dsnu_dn * rng.standard_normal(shape)
@@ -103,7 +104,7 @@ def write_stacks(
     sensor: PixelSensor,
     out_dir: str | Path,
     *,
-    photons: list[float] = (0.0, 2000.0, 8000.0, 20000.0),
+    photons: Sequence[float] = (0.0, 2000.0, 8000.0, 20000.0),
     exposure_s: float | list[float] = 0.01,
     frames: int = 4,
     seed: int = 0,

@@ -76,11 +76,12 @@ class StimulusFactor(Component):
 class FactorTerm(Protocol):
     """An effect's posterior as predictions use it: its factor per draw at a camera setting."""
 
-    def factor(self, setting, n_draws: int) -> np.ndarray:
-        """Factor on the effective stimulus per draw, shape ``(n_draws,)``."""
+    def factor(self, channel: str | None, setting: Any, n_draws: int) -> np.ndarray:
+        """Factor on the effective stimulus per draw at ``setting``, shape ``(n_draws,)``; ``channel``
+        names the channel for effects that differ by channel (None: the camera's, or the first)."""
         ...
 
-    def flags(self, setting) -> list[str]:
+    def flags(self, setting: Any) -> list[str]:
         """Why a prediction at ``setting`` extrapolates this effect (empty: it does not)."""
         ...
 

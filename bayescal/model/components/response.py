@@ -13,7 +13,7 @@ the model, physical in predictions and simulation).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -284,7 +284,7 @@ class Response(Component):
                 eta = numpyro.sample("eta", prior)
         return response_monomials(gain, eta, self.spec.order, xp=jnp)[..., 1:]
 
-    def sample_rolloff(self):
+    def sample_rolloff(self) -> tuple[Any, Any] | None:
         """The roll-off's knee (fraction of full scale) and sharpness ``p``, or None without one."""
         if not self.spec.rolloff:
             return None
