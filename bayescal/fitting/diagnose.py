@@ -9,7 +9,8 @@ which of these it is (a drifting dark level and a mis-placed nonlinearity both l
 residuals that run along the row order).
 
 :func:`diagnose` refits the table with each candidate switched on (Laplace: the search costs
-seconds), ranks them by PSIS-LOO against the model so far, adopts the best one when its
+seconds; the candidates' fits skip the leave-one-setting-out refits, which only the adopted
+model's final fit runs), ranks them by PSIS-LOO against the model so far, adopts the best one when its
 gain in expected log predictive density exceeds twice its standard error, and repeats
 (at most :data:`MAX_STEPS` switches) while a switch adds that much: a fit that passes its
 checks may still gain from one more (a roll-off near full scale that a cubic passes but a
@@ -23,7 +24,7 @@ fit fails (exit 3) only when nothing in the library explains the data.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -150,13 +151,17 @@ class Diagnosis:
         Whether a fit of ``spec`` passes every check.
     steps : list of pandas.DataFrame
         Per step, every candidate beside the model so far: elpd_diff against it (positive:
-        better), its standard error, and whether its fit passed every check.
+        better), its standard error, and whether its fit passed its checks (every check but the
+        leave-one-setting-out refits, which only the adopted model's fit runs).
+    fit : Fit or None
+        The Laplace fit of ``spec`` with every check (None when nothing was adopted).
     """
 
     adopted: tuple[str, ...]
     spec: ModelSpec
     explained: bool
     steps: list
+    fit: Fit | None = field(default=None, repr=False, compare=False)
 
     def describe(self) -> str:
         """The diagnosis in words, for the command line."""
@@ -164,7 +169,7 @@ class Diagnosis:
         for i, step in enumerate(self.steps):
             lines.append(f"step {i + 1}: each candidate against the model so far (elpd_loo difference +- se):")
             for r in step.itertuples():
-                ok = "passes every check" if r.fit_ok else "still fails"
+                ok = "passes its checks" if r.fit_ok else "still fails"
                 lines.append(f"  {r.elpd_diff:+9.1f} +- {r.dse:6.1f}  {r.candidate}  ({ok})")
         if self.adopted:
             what = " and ".join(self.adopted)
@@ -236,7 +241,7 @@ def diagnose(table: MeasurementTable, spec: ModelSpec, seed: int = 0, base: Fit 
         rows, fits = [], {}
         for name, changes in candidates(current_spec, table).items():
             trial = current_spec.replace(**changes)
-            result = _quiet_fit(table, trial, "laplace", seed)
+            result = _quiet_fit(table, trial.replace(inference={"holdout_check": False}), "laplace", seed)
             if _level_trend(result) >= LAMP_TREND:  # the "lamp errors" follow the signal: a shape, not a lamp
                 continue
             loo = _loo(result)
@@ -252,7 +257,10 @@ def diagnose(table: MeasurementTable, spec: ModelSpec, seed: int = 0, base: Fit 
             break
         current_spec, current, current_loo = fits[best.candidate]
         adopted.append(str(best.candidate))
-    return Diagnosis(tuple(adopted), current_spec, bool(current.ok), steps)
+    if not adopted:
+        return Diagnosis((), current_spec, bool(current.ok), steps)
+    final = _quiet_fit(table, current_spec, "laplace", seed)  # the adopted model, with every check
+    return Diagnosis(tuple(adopted), current_spec, bool(final.ok), steps, final)
 
 
 #: the rows a range check refits: illuminated readings below this fraction of full scale (and every dark row)
@@ -364,7 +372,8 @@ def fit_diagnosed(
     if found.adopted:
         if stage is not None:
             stage(f"refitting with {' and '.join(found.adopted)}")
-        final = fit(table, found.spec, backend, seed=seed, **kw)
+        reuse = backend == "laplace" and found.fit is not None and not kw
+        final = found.fit if reuse and found.fit is not None else fit(table, found.spec, backend, seed=seed, **kw)
     diag = final.diagnostics.with_check("diagnosis", [], found.to_dict())
     if found.adopted and final.ok and "order" in found.changes().get("response", {}):
         diag = diag.with_check("range", *range_check(table, found.spec, final, seed))
