@@ -309,20 +309,21 @@ def integrated_draws(
         nearest = min(found, key=lambda t: abs(t - theta), default=None)
         z = (found[nearest][0] if nearest is not None else result.mode).copy()
         z[index] = theta
-        for _ in range(newton_steps):
-            grad = np.asarray(program.value_and_grad(jnp.asarray(z), data)[1])[rest]
+        for step in range(newton_steps + 1):  # the value, gradient and Hessian at the point it stops at
+            value, grad = program.value_and_grad(jnp.asarray(z), data)
             hess_r = np.asarray(program.hessian(jnp.asarray(z), data))[np.ix_(rest, rest)]
-            delta = np.linalg.solve(0.5 * (hess_r + hess_r.T), grad)
-            z[rest] -= delta
-            if float(delta @ hess_r @ delta) < 1e-10:
+            if step == newton_steps:
                 break
-        hess_r = np.asarray(program.hessian(jnp.asarray(z), data))[np.ix_(rest, rest)]
+            delta = np.linalg.solve(0.5 * (hess_r + hess_r.T), np.asarray(grad)[rest])
+            if not float(delta @ hess_r @ delta) >= 1e-10:  # converged here (or not a number: judged below)
+                break
+            z[rest] -= delta
         try:
             chol_h = np.linalg.cholesky(0.5 * (hess_r + hess_r.T))
         except np.linalg.LinAlgError:
             found[theta] = (z, None, -np.inf)  # not a local maximum in the rest: no weight
             return
-        u = float(program.value_and_grad(jnp.asarray(z), data)[0])
+        u = float(value)
         if not (np.isfinite(u) and np.all(np.isfinite(z))):  # Newton left the density: no weight
             found[theta] = (z, None, -np.inf)
             return
