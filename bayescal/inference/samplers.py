@@ -58,9 +58,42 @@ def refuse_pooled(spec) -> None:
         )
 
 
+#: a Laplace draw is far off its Gaussian when its log-likelihood lies below the best draw's by more than half
+#: the chi-square quantile of this upper-tail probability (dimension: the unconstrained parameters)
+FAR_TAIL = 1e-9
+#: ... and the draws are refused when more than this fraction of them is that far off
+FAR_FRACTION = 1e-3
+
+
+def far_fraction(loglik: np.ndarray, dim: int) -> float:
+    """The fraction of the draws (pointwise ``loglik (n, rows)``) whose total log-likelihood lies further
+    below the best draw's than a Gaussian posterior allows (``chi2_dim(1 - FAR_TAIL) / 2``; ``-2 log p``
+    of a Gaussian's draws is chi-square with ``dim`` degrees of freedom, and the likelihood carries nearly
+    all of it here).
+
+    Such draws mean the posterior is not the Gaussian at its mode: a parameter the data bound on one side
+    only (a roll-off's knee above the readings: the Gaussian spills past the cliff where the knee meets
+    the data), or a mode far from the bulk.
+    """
+    from scipy.stats import chi2
+
+    total = np.asarray(loglik).sum(axis=-1)
+    total = np.where(np.isfinite(total), total, -np.inf)
+    limit = 0.5 * float(chi2.isf(FAR_TAIL, dim))
+    return float(np.mean(total < np.max(total) - limit))
+
+
 def laplace_problems(result, extra: dict) -> list[str]:
-    """Why Laplace draws cannot be used: the mode search did not converge, or the integration grid is cut."""
+    """Why Laplace draws cannot be used: the mode search did not converge, the integration grid is cut,
+    or the draws reach far beyond what the Gaussian allows (:func:`far_fraction`)."""
     problems = [] if (result.positive_definite and result.converged) else ["MAP did not converge"]
+    far = extra.get("draws_far_off", 0.0)
+    if far > FAR_FRACTION:
+        problems.append(
+            f"{far:.1%} of the Laplace draws lie where the likelihood is far lower than a Gaussian posterior "
+            "allows (the posterior is not the Gaussian at its mode, e.g. a parameter bounded by the data on one "
+            "side); use nuts"
+        )
     if "integrated_scale_failed" in extra:
         problems.append(f"the excess-scatter integration failed ({extra['integrated_scale_failed']}); use nuts")
     elif extra.get("integrated_scale_edge_weight", 0.0) > 0.01:
@@ -107,7 +140,10 @@ class LaplaceBackend(OneByOne):
 
     def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
         extra: dict = {}
-        return Draws(laplace_z(model, program, mode, seed, extra), extra=extra)
+        z = laplace_z(model, program, mode, seed, extra)
+        loglik = np.asarray(program.loglik(z[0], model.data))
+        extra["draws_far_off"] = far_fraction(loglik, z.shape[-1])
+        return Draws(z, extra=extra, loglik=loglik[None])
 
     def verdict(self, draws: Draws, posterior: dict, spec, mode) -> Diagnostics:
         problems = laplace_problems(mode, draws.extra)
