@@ -63,12 +63,18 @@ CASES = {
         spectral_level_rel=0.01, channel_scale_rel=0.015
     ),
     "amplifier glow (t^2, per channel)": Departures(glow_dn_s2=2e4),
+    "readout bias 0.8 DN/degC (sessions at 10, 20, 30 degC)": Departures(bias_dn_per_c=0.8),
     "all of them": Departures.everything(),
 }
+#: cases measured at several sensor temperatures (the bench repeats its plan at each); their held-out
+#: readings are predicted at THERMAL_HELD_OUT_C, a temperature never measured
+THERMAL = {"readout bias 0.8 DN/degC (sessions at 10, 20, 30 degC)": (10.0, 20.0, 30.0)}
+THERMAL_HELD_OUT_C = 25.0
 #: spec changes of a case
 SPEC_CHANGES: dict = {
     "PRNU 3 %, partial clipping modelled at 1 %": {"saturation": {"partial": "model"}},
     "PRNU 3 %, partial clipping modelled, learn_prnu": {"saturation": {"partial": "model", "learn_prnu": True}},
+    "readout bias 0.8 DN/degC (sessions at 10, 20, 30 degC)": {"offset_temperature": {"enabled": "auto"}},
 }
 #: cases whose table lacks the time of each row (dark.drift = "auto" then fits no drift)
 NO_TIME = {"dark drift 3 DN, no time_s column"}
@@ -76,9 +82,11 @@ HELD_OUT = [bc.Setting(0.01, 1.0), bc.Setting(0.004, 2.0)]
 RADIANCES = (6.0, 18.0)
 
 
-def one_dataset(spec, dep: Departures, seed: int, backend: str, timed: bool = True, diagnose: bool = True) -> dict:
+def one_dataset(
+    spec, dep: Departures, seed: int, backend: str, timed: bool = True, diagnose: bool = True, temperatures=()
+) -> dict:
     """Fit one bench dataset; hits of every interval, whether the fit was flagged, what was adopted."""
-    camera = with_held_out(BenchCamera(), exposures=(0.01,))
+    camera = with_held_out(BenchCamera(temperatures_c=tuple(temperatures)), exposures=(0.01,))
     frame, real = simulate_bench(camera, dep, seed=seed)
     if not timed:
         frame = frame.drop(columns="time_s")
@@ -109,10 +117,13 @@ def one_dataset(spec, dep: Departures, seed: int, backend: str, timed: bool = Tr
     cal = bc.Calibration.from_fit(fit)
     rng = np.random.default_rng([seed, 7])
     n_avg = camera.n_frames * camera.n_pixels
+    held_c = THERMAL_HELD_OUT_C if temperatures else None
     for setting in HELD_OUT:
+        setting = bc.Setting(setting.exposure_s, setting.gain, temperature_c=held_c)
         table = bc.predict(cal, list(RADIANCES), setting, n_avg=n_avg, seed=seed)
         for r in table.itertuples():
-            truth = real.read(r.channel, r.stimulus, setting.exposure_s, setting.gain, rng)
+            at = {} if held_c is None else {"temperature_c": held_c}
+            truth = real.read(r.channel, r.stimulus, setting.exposure_s, setting.gain, rng, **at)
             out["pred"].append(r.pi_lo <= truth <= r.pi_hi)
     return out
 
@@ -120,7 +131,16 @@ def one_dataset(spec, dep: Departures, seed: int, backend: str, timed: bool = Tr
 def run_case(name: str, dep: Departures, backend: str, reps: int, spec, diagnose: bool = True) -> dict:
     t0 = time.perf_counter()
     results = [
-        one_dataset(spec, dep, 10_000 + i, backend, timed=name not in NO_TIME, diagnose=diagnose) for i in range(reps)
+        one_dataset(
+            spec,
+            dep,
+            10_000 + i,
+            backend,
+            timed=name not in NO_TIME,
+            diagnose=diagnose,
+            temperatures=THERMAL.get(name, ()),
+        )
+        for i in range(reps)
     ]
     flagged = np.array([r["flagged"] for r in results])
     choices = pd.Series([r["adopted"] for r in results]).value_counts()

@@ -247,9 +247,7 @@ def finish(model, program, draws, backend: str, seed: int, result, lsq, timings:
     with warnings.catch_warnings():  # emcee has more walkers than thinned draws, by design
         warnings.filterwarnings("ignore", "Found chain dimension", UserWarning)
         chains, n, dim = np.shape(z)
-        loglik = draws.loglik
-        if loglik is None:
-            loglik = np.asarray(program.loglik(np.asarray(z).reshape(-1, dim), model.data)).reshape(chains, n, -1)
+        loglik = np.asarray(program.loglik(np.asarray(z).reshape(-1, dim), model.data)).reshape(chains, n, -1)
         import arviz_base
 
         dt = arviz_base.from_dict(

@@ -48,7 +48,6 @@ class Draws:
     divergences: int = 0
     stats: dict = field(default_factory=dict)  # per-draw sampler statistics (arviz sample_stats)
     extra: dict = field(default_factory=dict)  # diagnostics entries
-    loglik: np.ndarray | None = None  # pointwise log-likelihood (chain, draw, row) when the backend computed it
 
 
 class Backend(Protocol):

@@ -141,9 +141,9 @@ class LaplaceBackend(OneByOne):
     def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
         extra: dict = {}
         z = laplace_z(model, program, mode, seed, extra)
-        loglik = np.asarray(program.loglik(z[0], model.data))
-        extra["draws_far_off"] = far_fraction(loglik, z.shape[-1])
-        return Draws(z, extra=extra, loglik=loglik[None])
+        # only the totals are kept: a batch of many datasets (SBC) would otherwise hold every row's values
+        extra["draws_far_off"] = far_fraction(np.asarray(program.loglik(z[0], model.data)), z.shape[-1])
+        return Draws(z, extra=extra)
 
     def verdict(self, draws: Draws, posterior: dict, spec, mode) -> Diagnostics:
         problems = laplace_problems(mode, draws.extra)

@@ -68,8 +68,14 @@ class Parts:
 
     @property
     def factors(self) -> tuple[StimulusFactor, ...]:
-        """The factors on the effective stimulus besides the settings': the sphere's level errors, the effects."""
-        return (self.sphere, *self.effects)
+        """The factors on the effective stimulus besides the settings': the sphere's level errors, the
+        factor effects."""
+        return (self.sphere, *(e for e in self.effects if e.role == "factor"))
+
+    @property
+    def offsets(self) -> tuple[Effect, ...]:
+        """The offset effects: DN added to every reading beside the dark level."""
+        return tuple(e for e in self.effects if e.role == "offset")
 
     @property
     def structure(self) -> Parts:
@@ -102,7 +108,7 @@ def _settings(spec: ModelSpec, layout: Layout) -> SettingFactors:
 def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
     """The numpyro model for one structure (cached, so compilations are reused)::
 
-    DN = dark + S_g(u * factors) (clipped at full scale) + noise
+    DN = dark + offsets + S_g(u * factors) (clipped at full scale) + noise
 
     ``S_g`` is the response at the row's effective gain ``g`` (its nominal ratio times the
     gain's effective factor): ``S`` itself for a nonlinearity of the output, ``g S(x / g)`` for
@@ -124,6 +130,8 @@ def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
             signal = parts.response.compress(signal, *rolloff, _jnp())
         signal = numpyro.deterministic("row_signal", signal)
         offset = parts.dark.sample(data)
+        for term in parts.offsets:  # each effect's DN, in the model's scaled units
+            offset = offset + term.sample(data) / parts.dark.dn_scale
         var_mean = parts.noise.sample(data, signal)
         var_pix = parts.noise.nominal_pixel_variance(data, signal, _jnp())
         parts.saturation.observe(data, offset + signal, signal, var_pix, var_mean)

@@ -158,7 +158,8 @@ def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndar
     channel, exposure, gain, TDI stages and temperature; docs/architecture.md, section 2)."""
     ch = rows["channel"].to_numpy()
     t, g, m = (rows[k].to_numpy(dtype=float) for k in ("exposure_s", "gain", "tdi_stages"))
-    x = effective_stimulus(stimulus, t, g, m, spec) * _effect_factors(truth, rows, spec)
+    factor, added = _effects(truth, rows, spec)
+    x = effective_stimulus(stimulus, t, g, m, spec) * factor
     order = max(len(v) for v in truth.response.values())
     coef = np.zeros((len(rows), order))
     for c, values in truth.response.items():
@@ -171,21 +172,25 @@ def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndar
         warm = Dark.doubling(np.where(np.isfinite(temp), temp - truth.temperature_ref_c, 0.0), truth.dark_doubling_c)
     offset, slope = _dark(truth, g, spec)
     offset = offset + np.array([truth.channel_offset.get(c, 0.0) for c in ch])
-    dark = Dark.level(offset, slope, t, g_rel if truth.dark_proportional else 1.0, warm)
+    dark = Dark.level(offset, slope, t, g_rel if truth.dark_proportional else 1.0, warm) + added
     var_t = Noise.pixel_variance(truth.read_noise_dn, truth.conversion_gain, g_rel, signal)
     return dark + signal, signal, var_t
 
 
-def _effect_factors(truth: Truth, rows: pd.DataFrame, spec: ModelSpec) -> np.ndarray | float:
-    """The true factors of the optional effects named in the truth (``[truth.effects.<section>]``)."""
-    factor: np.ndarray | float = 1.0
+def _effects(truth: Truth, rows: pd.DataFrame, spec: ModelSpec) -> tuple[np.ndarray, np.ndarray]:
+    """The optional effects named in the truth (``[truth.effects.<section>]``) at every row: the factor
+    on the effective stimulus and the DN added to the reading."""
+    factor, added = np.ones(len(rows)), np.zeros(len(rows))
     for section, params in truth.effects.items():
         try:
             cls = effect(section)
         except KeyError:
             raise SpecError(f"[truth.effects] names '{section}', which is not a registered effect") from None
-        factor = factor * cls.true_factor(params, rows, spec)
-    return factor
+        if cls.role == "offset":
+            added = added + cls.true_offset(params, rows, spec)
+        else:
+            factor = factor * cls.true_factor(params, rows, spec)
+    return factor, added
 
 
 def _rows(design: Design) -> pd.DataFrame:

@@ -30,7 +30,7 @@ import numpy as np
 
 from bayescal.errors import PosteriorError, SpecError, TableError
 from bayescal.model import kinds
-from bayescal.model.components import EFFECTS, Dark, FactorTerm, Noise, Response, Saturation
+from bayescal.model.components import EFFECTS, Dark, FactorTerm, Noise, OffsetTerm, Response, Saturation
 from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.components.settings import SettingFactorDraws, SettingFactors
 from bayescal.model.spec import ModelSpec, Reference
@@ -136,6 +136,7 @@ class Calibration:
     temperature_ref_c: float = 20.0
     doubling_c: np.ndarray | None = None  # (S,) dark-current doubling temperature; None: no T dependence
     factors: tuple[FactorTerm, ...] = ()  # factors on the effective stimulus: settings, effects (empty: exact)
+    offsets: tuple[OffsetTerm, ...] = ()  # offset effects: DN added to every reading beside the dark level
     charge_nonlinearity: bool = False  # the nonlinearity is the charge's (before the gain), not the output's
     dark_glow: np.ndarray | None = None  # (S, C) amplifier glow, DN/s^2 at the reference gain; None: not modelled
     rolloff: np.ndarray | None = None  # (S, 2) roll-off knee (DN) and power (Response.compress); None: none
@@ -246,6 +247,7 @@ class Calibration:
             temperature_ref_c=spec.dark.temperature_ref_c,
             doubling_c=flat(draws["doubling_c"]) if "doubling_c" in draws else None,
             factors=_factor_terms(spec, draws, frame, flat),
+            offsets=_offset_terms(spec, draws, frame),
             charge_nonlinearity=spec.response.nonlinearity_domain == "charge",
             dark_glow=flat(draws["dark_glow_dn_s2"]) if "dark_glow_dn_s2" in draws else None,
             rolloff=(
@@ -360,7 +362,10 @@ class Calibration:
         offset, slope = self.dark_offset[:, c, column], self.dark_slope[:, column]
         glow = 0.0 if self.dark_glow is None else self.dark_glow[:, c]
         g_rel = setting.gain / self.reference.gain
-        return Dark.level(offset, slope, setting.exposure_s, gain_factor, warm, glow=glow, g_rel=g_rel)
+        level = Dark.level(offset, slope, setting.exposure_s, gain_factor, warm, glow=glow, g_rel=g_rel)
+        for term in self.offsets:
+            level = level + term.offset(channel, setting, self.n_draws)
+        return level
 
     def gain_ratio(self, setting: Setting, channel: str | None = None) -> np.ndarray:
         """Effective programmable gain per draw relative to the reference: ``g / g_ref`` times the
@@ -456,7 +461,8 @@ class Calibration:
 
     def flags(self, setting: Setting, stimulus=None) -> list[str]:
         """Why a prediction at ``setting`` (and ``stimulus``) is an extrapolation."""
-        out = self.calibrated.flags(setting) + [why for term in self.factors for why in term.flags(setting)]
+        terms = self.factors + self.offsets
+        out = self.calibrated.flags(setting) + [why for term in terms for why in term.flags(setting)]
         if stimulus is not None and np.isfinite(self.calibrated.max_effective):
             x = float(np.max(stimulus)) * setting.ratio(self.reference)
             if x > self.calibrated.max_effective * (1 + 1e-9):
@@ -495,9 +501,18 @@ def _calibrated_range(frame, spec: ModelSpec) -> CalibratedRange:
 
 
 def _factor_terms(spec: ModelSpec, draws: dict, frame, flat) -> tuple[FactorTerm, ...]:
-    """The factors on the effective stimulus that predictions apply: the settings', then each effect's."""
-    effects = (cls.term(spec.effect(cls.section), spec, draws, frame) for cls in EFFECTS)
-    return SettingFactors.terms(draws, frame, spec.reference, flat) + tuple(t for t in effects if t is not None)
+    """The factors on the effective stimulus that predictions apply: the settings', then each factor effect's."""
+    return SettingFactors.terms(draws, frame, spec.reference, flat) + _effect_terms(spec, draws, frame, "factor")
+
+
+def _offset_terms(spec: ModelSpec, draws: dict, frame) -> tuple[OffsetTerm, ...]:
+    """The offset effects that predictions add to the dark level."""
+    return _effect_terms(spec, draws, frame, "offset")
+
+
+def _effect_terms(spec: ModelSpec, draws: dict, frame, role: str) -> tuple:
+    terms = (cls.term(spec.effect(cls.section), spec, draws, frame) for cls in EFFECTS if cls.role == role)
+    return tuple(t for t in terms if t is not None)
 
 
 def _photon_transfer(frame, spec, offset, dark_gains, proportional) -> tuple[float, float]:

@@ -43,6 +43,10 @@ __all__ = ["BenchCamera", "Departures", "Realisation", "simulate_bench", "with_h
 
 #: how the amplifier glow divides between the channels (R, G, B): the amplifier sits nearer some pixels
 GLOW_SHARE = (1.0, 0.4, 1.8)
+#: how the readout bias's temperature drift divides between the channels (R, G, B): each has its own path
+BIAS_SHARE = (1.0, -0.6, 0.4)
+#: the temperature (degC) the bench's datasheet offsets refer to
+BENCH_REFERENCE_C = 20.0
 
 
 @dataclass(frozen=True)
@@ -60,6 +64,7 @@ class Departures:
     channel_scale_rel: float = 0.0
     glow_dn_s2: float = 0.0
     rolloff_shape: str = "knee"  # "knee": S / (1 + (S / S_k)^4)^(1/4); "tanh": S_t tanh(S / S_t)
+    bias_dn_per_c: float = 0.0  # the readout bias drifts this many DN per degC (times BIAS_SHARE per channel)
 
     @classmethod
     def everything(cls) -> Departures:
@@ -100,6 +105,7 @@ class BenchCamera:
     darks: tuple = ((0.0027, 0.004, 0.008, 0.01), (1.0, 2.0, 3.0, 4.0))
     n_frames: int = 20
     n_pixels: int = 1024
+    temperatures_c: tuple[float, ...] = ()  # sessions at these sensor temperatures (each repeats the plan)
 
     @property
     def full_scale(self) -> float:
@@ -146,12 +152,16 @@ class Realisation:
             s = s / (1.0 + (np.maximum(s, 0.0) / knee) ** 4) ** 0.25
         return s
 
-    def dark_dn(self, channel: str, exposure_s: float, gain: float, drift: float = 0.0) -> float:
-        """Mean dark level (DN) at a gain step and exposure, plus any drift."""
+    def dark_dn(
+        self, channel: str, exposure_s: float, gain: float, drift: float = 0.0, temperature_c: float = BENCH_REFERENCE_C
+    ) -> float:
+        """Mean dark level (DN) at a gain step, exposure and sensor temperature, plus any drift."""
         cam = self.camera
-        glow = self.departures.glow_dn_s2 * GLOW_SHARE[cam.channels.index(channel) % 3] * exposure_s**2 * gain
+        share = cam.channels.index(channel) % 3
+        glow = self.departures.glow_dn_s2 * GLOW_SHARE[share] * exposure_s**2 * gain
+        bias = self.departures.bias_dn_per_c * BIAS_SHARE[share] * (temperature_c - BENCH_REFERENCE_C)
         dark = cam.offset_dn[gain] + cam.channel_offset_dn[channel] + cam.dark_current_dn_s[gain] * exposure_s
-        return dark + glow + drift
+        return dark + glow + drift + bias
 
     def read(
         self,
@@ -164,6 +174,7 @@ class Realisation:
         n_frames: int | None = None,
         n_pixels: int | None = None,
         drift: float = 0.0,
+        temperature_c: float = BENCH_REFERENCE_C,
     ) -> float:
         """One region-mean reading: every pixel of every frame drawn, clipped and quantised."""
         cam = self.camera
@@ -173,7 +184,7 @@ class Realisation:
         electrons = np.maximum(signal, 0.0) * cam.electrons_per_dn / gain
         shot = np.sqrt(electrons) / cam.electrons_per_dn * gain
         noise = rng.standard_normal((nf, npx)) * np.sqrt(shot**2 + (cam.read_noise_dn * gain) ** 2)
-        frames = self.dark_dn(channel, exposure_s, gain, drift) + signal + noise
+        frames = self.dark_dn(channel, exposure_s, gain, drift, temperature_c) + signal + noise
         return float(np.clip(np.round(frames), 0.0, cam.full_scale).mean())
 
     def true_coefficients(self, channel: str, relative: bool = False) -> np.ndarray:
@@ -208,7 +219,8 @@ def simulate_bench(
     sphere in one campaign share them.
 
     Columns: ``channel, radiance, exposure_s, gain, dn_mean, level, n_frames,
-    n_pixels, time_s``; ``radiance`` is the sphere's *nominal* reading, 0 for dark
+    n_pixels, time_s`` (and ``temperature_c`` when the camera has ``temperatures_c``: the whole plan is
+    measured once per sensor temperature); ``radiance`` is the sphere's *nominal* reading, 0 for dark
     rows; ``time_s`` when the row was measured.
     """
     cam = camera or BenchCamera()
@@ -236,17 +248,20 @@ def simulate_bench(
     for t in cam.darks[0]:
         for g in cam.darks[1]:
             plan += [(c, None, t, g) for c in cam.channels]
+    sessions = cam.temperatures_c or (BENCH_REFERENCE_C,)
+    runs = [(c, li, t, g, temp) for temp in sessions for c, li, t, g in plan]
     rows = []
-    for i, (c, li, t, g) in enumerate(plan):
-        drift = dep.dark_drift_dn * i / max(len(plan) - 1, 1)
+    for i, (c, li, t, g, temp) in enumerate(runs):
+        drift = dep.dark_drift_dn * i / max(len(runs) - 1, 1)
         if li is None:
             nominal, true = 0.0, 0.0
         else:
             nominal = cam.levels[li]
             true = nominal * scale * channel_scale[c] * (1.0 + shared[li] + spectral[li, cam.channels.index(c)])
-        dn = real.read(c, true, t, g, rng, drift=drift)
+        dn = real.read(c, true, t, g, rng, drift=drift, temperature_c=temp)
         rows.append(
             {
+                **({"temperature_c": temp} if cam.temperatures_c else {}),
                 "channel": c,
                 "radiance": nominal,
                 "exposure_s": t,

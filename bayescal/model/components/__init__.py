@@ -5,15 +5,17 @@ Roles in the measurement equation (docs/architecture.md, section 2)::
     DN = dark(gain, t, T) + S(x (1 + e_level) f_gain f_exposure f_tdi f_effects) (clipped at full scale) + noise
 
 The six core components fill their places in it; the optional effects in :data:`EFFECTS` are
-further factors on the effective stimulus, each configured from a spec section of its own.
+further factors on the effective stimulus or levels added to the reading (their ``role``), each
+configured from a spec section of its own.
 Adding an effect is its module, its tests and one line here (see :mod:`.base`).
 """
 
 from collections.abc import Mapping
 
-from bayescal.model.components.base import Component, Context, Effect, FactorTerm, StimulusFactor
+from bayescal.model.components.base import Component, Context, Effect, FactorTerm, OffsetTerm, StimulusFactor
 from bayescal.model.components.dark import Dark, DarkSpec
 from bayescal.model.components.noise import Noise, NoiseSpec
+from bayescal.model.components.offset_temperature import OffsetTemperature
 from bayescal.model.components.response import Response, ResponseSpec
 from bayescal.model.components.responsivity import ResponsivityTemperature
 from bayescal.model.components.saturation import Saturation, SaturationSpec
@@ -32,6 +34,7 @@ __all__ = [
     "FactorTerm",
     "Noise",
     "NoiseSpec",
+    "OffsetTerm",
     "Response",
     "ResponseSpec",
     "Saturation",
@@ -49,8 +52,8 @@ __all__ = [
 #: the core components, in the order their quantities are reported
 CORE: tuple[type[Component], ...] = (Response, Dark, Sphere, Noise, Saturation, SettingFactors)
 
-#: the optional effects: factors on the effective stimulus with a spec section of their own
-EFFECTS: tuple[type[Effect], ...] = (ResponsivityTemperature, ShutterOffset)
+#: the optional effects with a spec section of their own: factors on the effective stimulus, or offsets (their role)
+EFFECTS: tuple[type[Effect], ...] = (ResponsivityTemperature, ShutterOffset, OffsetTemperature)
 
 
 def effect(section: str) -> type[Effect]:

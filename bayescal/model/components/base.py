@@ -10,11 +10,16 @@ A component is one physical effect of the measurement equation.  It owns
 - the names and dims of its sampled sites and reported quantities (``sites``, ``reported``).
 
 The six core components fill fixed places in the equation (response, dark, noise, sphere,
-saturation, settings).  An :class:`Effect` is an optional factor on the effective stimulus,
-configured from a spec section of its own; it is added to the model by one line in
+saturation, settings).  An :class:`Effect` is an optional term with a spec section of its own,
+in one of the equation's two places (its ``role``)::
+
+    DN = dark + sum(offset effects) + S(x * prod(factor effects)) (+ noise, clipped)
+
+a factor on the effective stimulus (``"factor"``) or a level added to every reading in DN
+(``"offset"``, present at zero exposure and zero light).  It is added to the model by one line in
 :data:`bayescal.model.components.EFFECTS`, and the spec, the data, the assembly, the reported
-quantities, predictions (:class:`~bayescal.posterior.calibration.Calibration`) and the simulator
-all reach it through this protocol.
+quantities, predictions (:class:`~bayescal.posterior.calibration.Calibration`, through its
+:class:`FactorTerm` or :class:`OffsetTerm`) and the simulator all reach it through this protocol.
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ import numpy as np
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["Component", "StimulusFactor", "Effect", "FactorTerm", "Context"]
+__all__ = ["Component", "StimulusFactor", "Effect", "FactorTerm", "OffsetTerm", "Context"]
 
 
 @dataclass(frozen=True)
@@ -86,11 +91,31 @@ class FactorTerm(Protocol):
         ...
 
 
+class OffsetTerm(Protocol):
+    """An offset effect's posterior as predictions use it: the DN it adds per draw at a camera setting."""
+
+    def offset(self, channel: str | None, setting: Any, n_draws: int) -> np.ndarray:
+        """DN added to a reading per draw at ``setting``, shape ``(n_draws,)``."""
+        ...
+
+    def flags(self, setting: Any) -> list[str]:
+        """Why a prediction at ``setting`` extrapolates this effect (empty: it does not)."""
+        ...
+
+
 class Effect(StimulusFactor):
-    """An optional stimulus factor with a spec section of its own (registered in ``EFFECTS``)."""
+    """An optional term with a spec section of its own (registered in ``EFFECTS``).
+
+    ``role = "factor"`` (default): ``sample`` returns each row's factor on the effective stimulus,
+    ``term`` a :class:`FactorTerm`, ``true_factor`` the simulator's factor.  ``role = "offset"``:
+    ``sample`` returns the DN each row's reading gains (the assembly scales it), ``term`` an
+    :class:`OffsetTerm`, ``true_offset`` the simulator's DN.
+    """
 
     #: the dataclass of its spec section (defaults must describe the effect switched off or automatic)
     spec_class: ClassVar[type]
+    #: where it enters the measurement equation: "factor" (on the effective stimulus) or "offset" (DN added)
+    role: ClassVar[str] = "factor"
 
     @classmethod
     @abstractmethod
@@ -102,7 +127,9 @@ class Effect(StimulusFactor):
         return {}
 
     @classmethod
-    def term(cls, section: Any, spec: Any, draws: Mapping[str, np.ndarray], frame: pd.DataFrame) -> FactorTerm | None:
+    def term(
+        cls, section: Any, spec: Any, draws: Mapping[str, np.ndarray], frame: pd.DataFrame
+    ) -> FactorTerm | OffsetTerm | None:
         """The effect in a calibration's predictions, from its reported draws (None: not in them)."""
         return None
 
@@ -112,3 +139,9 @@ class Effect(StimulusFactor):
         ``[truth.effects.<section>]`` table; ``rows``: channel, exposure_s, gain, tdi_stages,
         temperature_c of every row)."""
         return np.ones(len(rows))
+
+    @classmethod
+    def true_offset(cls, params: Mapping[str, Any], rows: pd.DataFrame, spec: Any) -> np.ndarray:
+        """An offset effect's DN for every row of a simulated table (``params`` and ``rows`` as in
+        :meth:`true_factor`)."""
+        return np.zeros(len(rows))
