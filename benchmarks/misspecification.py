@@ -74,7 +74,6 @@ THERMAL_HELD_OUT_C = 25.0
 SPEC_CHANGES: dict = {
     "PRNU 3 %, partial clipping modelled at 1 %": {"saturation": {"partial": "model"}},
     "PRNU 3 %, partial clipping modelled, learn_prnu": {"saturation": {"partial": "model", "learn_prnu": True}},
-    "readout bias 0.8 DN/degC (sessions at 10, 20, 30 degC)": {"offset_temperature": {"enabled": "auto"}},
 }
 #: cases whose table lacks the time of each row (dark.drift = "auto" then fits no drift)
 NO_TIME = {"dark drift 3 DN, no time_s column"}

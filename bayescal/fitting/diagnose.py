@@ -3,7 +3,8 @@
 A real camera departs from any fixed model in ways the library has components for: its
 nonlinearity arises after the gain rather than in the charge, its response needs a higher
 order near full scale, its dark level drifted over a session that recorded no times, an
-amplifier glows during long exposures, the lamp's spectrum changes with its level.  The
+amplifier glows during long exposures, the lamp's spectrum changes with its level, its
+readout's offset follows the sensor temperature.  The
 misfit checks (:mod:`bayescal.fitting.misfit`) see that something is wrong; they cannot say
 which of these it is (a drifting dark level and a mis-placed nonlinearity both leave
 residuals that run along the row order).
@@ -57,7 +58,7 @@ def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
 
     Only switches the table can inform: the nonlinearity's domain needs several illuminated
     gains; the glow dark rows at three or more exposures; a drift over the row order a table
-    without ``time_s``.
+    without ``time_s``; an offset against temperature dark rows at two or more temperatures.
     """
     frame = table.frame
     lit = frame["stimulus"] > 0
@@ -85,6 +86,11 @@ def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
             out["a dark level that drifted over the run (the rows' order)"] = {"dark": {"drift": "order"}}
     if not d.glow and d.exposure_slope and frame.loc[~lit, "exposure_s"].nunique() >= 3:
         out["amplifier glow (a dark signal in t^2, per channel)"] = {"dark": {"glow": True}}
+    warm = spec.effect("offset_temperature")
+    if warm.enabled is not True and "temperature_c" in frame and frame.loc[~lit, "temperature_c"].nunique() >= 2:
+        out["an offset that drifts with the sensor temperature (per channel)"] = {
+            "offset_temperature": {"enabled": True}
+        }
     if s.channel_level_rel == 0:
         for rel in CHANNEL_LEVEL_REL:
             name = f"lamp errors that differ by channel, {rel:.1%} per level (its spectrum changes with its level)"

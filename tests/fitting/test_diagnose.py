@@ -17,8 +17,9 @@ from tests.conftest import MODELS
 SPEC = MODELS / "seed000_bayer.toml"
 
 
-def _table(departures, seed, timed=True):
-    frame, real = simulate_bench(with_held_out(BenchCamera(), exposures=(0.01,)), departures, seed=seed)
+def _table(departures, seed, timed=True, temperatures=()):
+    camera = with_held_out(BenchCamera(temperatures_c=temperatures), exposures=(0.01,))
+    frame, real = simulate_bench(camera, departures, seed=seed)
     if not timed:
         frame = frame.drop(columns="time_s")
     return bc.MeasurementTable.from_frame(frame), real
@@ -36,6 +37,9 @@ def test_candidates_are_the_switches_the_table_can_inform():
     assert any("response order 3" in n for n in names)
     assert "a soft roll-off towards full scale (not a polynomial)" in names  # readings reach 60 % of full scale
     assert "a soft roll-off towards full scale, with the nonlinearity of the output" in names
+    assert not any("sensor temperature" in n for n in names)  # one temperature: nothing to inform it
+    thermal, _ = _table(Departures(), 1, temperatures=(10.0, 30.0))
+    assert "an offset that drifts with the sensor temperature (per channel)" in candidates(spec, thermal)
     # one illuminated gain: the domain of the nonlinearity cannot be told
     frame, _ = simulate_bench(BenchCamera(), Departures(), seed=1)
     one_gain = bc.MeasurementTable.from_frame(frame[frame.gain == 1.0].reset_index(drop=True))
@@ -64,17 +68,18 @@ def test_a_dark_drift_without_times_is_named_not_blamed_on_something_else():
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    ("departures", "adopted"),
+    ("departures", "adopted", "temperatures"),
     [
-        (Departures(spectral_level_rel=0.01, channel_scale_rel=0.015), "lamp errors that differ by channel"),
-        (Departures(glow_dn_s2=2e4), "amplifier glow"),
-        (Departures(rolloff=True), "a soft roll-off towards full scale"),
-        (Departures(rolloff=True, rolloff_shape="tanh"), "a soft roll-off towards full scale"),
+        (Departures(spectral_level_rel=0.01, channel_scale_rel=0.015), "lamp errors that differ by channel", ()),
+        (Departures(glow_dn_s2=2e4), "amplifier glow", ()),
+        (Departures(rolloff=True), "a soft roll-off towards full scale", ()),
+        (Departures(rolloff=True, rolloff_shape="tanh"), "a soft roll-off towards full scale", ()),
+        (Departures(bias_dn_per_c=0.8), "an offset that drifts with the sensor temperature", (10.0, 20.0, 30.0)),
     ],
 )
-def test_each_departure_is_named(departures, adopted):
+def test_each_departure_is_named(departures, adopted, temperatures):
     spec = bc.load_spec(SPEC)
-    table, _ = _table(departures, 21)
+    table, _ = _table(departures, 21, temperatures=temperatures)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result, found = bc.fit_diagnosed(table, spec, "laplace", seed=1)
