@@ -39,6 +39,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 
@@ -64,13 +65,33 @@ UNPOOLED_SD = 30.0
 ABSENT_VAR = 1e-10
 
 
+class GlobalSlots(NamedTuple):
+    """Where each fleet-wide latent sits in a kind's global vector (:attr:`Plan.g`)."""
+
+    mu: slice  # each channel's fleet mean (C)
+    rho: int  # the fleet's common trend
+    sphere: slice  # each sphere's log scale error (J; the log gain only)
+    campaign: slice  # each campaign's fleet-wide state (the log gain only)
+
+
+class CameraSlots(NamedTuple):
+    """Where each of a camera's latents sits in its block (:attr:`Plan.m`)."""
+
+    a: int  # the camera's level, common to its channels
+    b: slice  # its channels' own levels (C)
+    r: int  # its trend, off the fleet's
+    walk: slice  # its random-walk steps (max_walk)
+    jitter: slice  # its campaigns' own states (max_units)
+    shared: slice  # its repeating error, in what its units report (C)
+
+
 @dataclass(frozen=True)
 class Plan:
     """The static structure of one fleet model (one compilation per plan and data shape).
 
-    Latent slots per kind: global ``[mu_c (C), rho, sphere_j (J)]``, per camera
-    ``[a, b_c (C), r, walk steps (max_walk), unit jitters (max_units), shared error (C)]``;
-    slots a kind does not use stay inactive.
+    Latent slots per kind (:attr:`g`, :attr:`m`): global ``[mu_c (C), rho, sphere_j (J), campaign
+    states]``, per camera ``[a, b_c (C), r, walk steps (max_walk), unit jitters (max_units), shared
+    error (C)]``; slots a kind does not use stay inactive.
     """
 
     n_kinds: int
@@ -115,6 +136,20 @@ class Plan:
         return 2 if self.drift else 0
 
     @property
+    def g(self) -> GlobalSlots:
+        """The global latents' slots, by name."""
+        c, j = self.n_channels, self.n_spheres
+        return GlobalSlots(slice(0, c), c, slice(c + 1, c + 1 + j), slice(c + 1 + j, self.n_global))
+
+    @property
+    def m(self) -> CameraSlots:
+        """A camera's latents' slots, by name."""
+        c = self.n_channels
+        walk = slice(2 + c, 2 + c + max(self.max_walk, 0))
+        jitter = slice(walk.stop, walk.stop + self.max_units)
+        return CameraSlots(0, slice(1, 1 + c), 1 + c, walk, jitter, slice(jitter.stop, self.block))
+
+    @property
     def n_global(self) -> int:
         return self.n_channels + 1 + self.n_spheres + self.n_campaigns
 
@@ -125,10 +160,6 @@ class Plan:
     @property
     def shared_base(self) -> int:
         return 2 + self.n_channels + max(self.max_walk, 0) + self.max_units
-
-    @property
-    def jitter_base(self) -> int:
-        return 2 + self.n_channels + max(self.max_walk, 0)
 
     def excess_priors(self) -> np.ndarray:
         """The half-normal prior scale of each ``kappa - 1``, ``(K * D,)`` (kind-major, as sampled):
@@ -361,7 +392,8 @@ def pieces(plan: Plan, h_g, h_m, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     """The design and the values split by the factor that scales them (:func:`_blocks`):
     ``x_g (F, K, U, C, G)``, ``x_m (F, K, U, C, B)`` and ``v (F, K, U, C)``; ``T^-1 H = sum_a f_a x_a``."""
     n_dir = plan.n_directions
-    shared = np.arange(plan.block) >= plan.shared_base if plan.shared else np.zeros(plan.block, bool)
+    shared = np.zeros(plan.block, bool)
+    shared[plan.m.shared] = True  # empty without a shared error
     proj = projections(plan.n_channels)
     x_g = np.zeros((n_dir + 1,) + h_g.shape)
     x_m = np.zeros((n_dir + 1,) + h_m.shape)
@@ -397,44 +429,46 @@ def _design(plan: Plan, camera, sphere, t, walk_units, walk_dt, walk_slot, unit_
     h_g = np.zeros((k_n, plan.n_units, c_n, plan.n_global))
     h_m = np.zeros((k_n, plan.n_units, c_n, plan.block))
     active = np.zeros((k_n, plan.n_cameras, plan.block))
-    r_slot, w_base = 1 + c_n, 2 + c_n
+    gs, ms = plan.g, plan.m
     for k in range(k_n):
         drifting = k < plan.n_drift
         for u in range(plan.n_units):
             m = camera[u]
             for c in range(c_n):
-                h_g[k, u, c, c] = 1.0  # mu_c
-                h_m[k, u, c, 0] = 1.0  # a
-                h_m[k, u, c, 1 + c] = 1.0  # b_c
+                h_g[k, u, c, gs.mu.start + c] = 1.0
+                h_m[k, u, c, ms.a] = 1.0
+                h_m[k, u, c, ms.b.start + c] = 1.0
                 if drifting:
-                    h_g[k, u, c, c_n] = t[u]  # rho
-                    h_m[k, u, c, r_slot] = t[u]  # r
+                    h_g[k, u, c, gs.rho] = t[u]
+                    h_m[k, u, c, ms.r] = t[u]
                     for w in np.flatnonzero(camera[walk_units] == m):
                         if t[walk_units[w]] <= t[u]:
-                            h_m[k, u, c, w_base + walk_slot[w]] = np.sqrt(walk_dt[w])
+                            h_m[k, u, c, ms.walk.start + walk_slot[w]] = np.sqrt(walk_dt[w])
                     if plan.jitter:
-                        h_m[k, u, c, plan.jitter_base + unit_slot[u]] = 1.0  # this campaign's own state
+                        h_m[k, u, c, ms.jitter.start + unit_slot[u]] = 1.0  # this campaign's own state
                 if k == 0:
-                    h_g[k, u, c, c_n + 1 + sphere[u]] = 1.0
+                    h_g[k, u, c, gs.sphere.start + sphere[u]] = 1.0
                     if plan.n_campaigns:  # common to that campaign's measurements (a fleet not on a straight line)
-                        h_g[k, u, c, c_n + 1 + plan.n_spheres + campaign[u]] = 1.0
+                        h_g[k, u, c, gs.campaign.start + campaign[u]] = 1.0
             if plan.shared:  # the camera's repeating error, correlated across channels as the units' are
-                h_m[k, u, :, plan.shared_base : plan.shared_base + c_n] = shared_chol[k, m]
-        active[k, :, : 1 + c_n] = 1.0
+                h_m[k, u, :, ms.shared] = shared_chol[k, m]
+        active[k, :, ms.a] = 1.0
+        active[k, :, ms.b] = 1.0
         if drifting:
-            active[k, :, r_slot] = 1.0
+            active[k, :, ms.r] = 1.0
             for j, walker in enumerate(walk_units):
-                active[k, camera[walker], w_base + walk_slot[j]] = 1.0
+                active[k, camera[walker], ms.walk.start + walk_slot[j]] = 1.0
             if plan.jitter:
                 for u in range(plan.n_units):
-                    active[k, camera[u], plan.jitter_base + unit_slot[u]] = 1.0
+                    active[k, camera[u], ms.jitter.start + unit_slot[u]] = 1.0
         if plan.shared:
-            active[k, :, plan.shared_base :] = 1.0
+            active[k, :, ms.shared] = 1.0
     return h_g, h_m, active
 
 
 def block_scales(plan: Plan, hyper: dict, xp=np):
-    """The scale of each camera slot per kind, ``(K, B)``, from the scales' values."""
+    """The scale of each camera slot per kind, ``(K, B)``, from the scales' values (columns in the
+    order of :class:`CameraSlots`: ``a``, ``b``, ``r``, ``walk``, ``jitter``, ``shared``)."""
     k_n, c_n = plan.n_kinds, plan.n_channels
     pad = xp.zeros(k_n - 2) if plan.drift else None
     if plan.pooling == "partial":

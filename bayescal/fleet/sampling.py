@@ -373,40 +373,40 @@ def _named(plan: Plan, data: FleetData, g: np.ndarray, cam: np.ndarray, kappa: n
     ``rate (S, 2, M)``, ``walk (S, 2, U)``, ``sphere_log_scale (S, J)``, ``theta`` and
     ``theta_observed (S, K, U, C)`` (the sphere's factor added to the log gain); ``kappa``
     ``(S, K, D)`` scales the camera's shared error (``T L e``)."""
-    c_n = plan.n_channels
-    mu = g[:, :, :c_n]
-    level = mu[:, :, None, :] + cam[:, :, :, :1] + cam[:, :, :, 1 : 1 + c_n]  # (S, K, M, C)
+    gs, ms = plan.g, plan.m
+    mu = g[:, :, gs.mu]
+    level = mu[:, :, None, :] + cam[:, :, :, ms.a, None] + cam[:, :, :, ms.b]  # (S, K, M, C)
     out = {"mu": mu, "camera_level": level}
     theta = level[:, :, data.camera, :].copy()  # (S, K, U, C)
     if plan.drift:
-        rate = g[:, :2, c_n, None] + cam[:, :2, :, 1 + c_n]  # (S, 2, M)
-        out["rate_mean"] = g[:, :2, c_n]
+        rate = g[:, :2, gs.rho, None] + cam[:, :2, :, ms.r]  # (S, 2, M)
+        out["rate_mean"] = g[:, :2, gs.rho]
         out["rate"] = rate
         drift = rate[:, :, data.camera] * data.t[None, None, :]
         if plan.walk:
             walk = np.zeros((g.shape[0], 2, plan.n_units))
             for j, v in enumerate(data.walk_units):
                 m = data.camera[v]
-                step = cam[:, :2, m, 2 + c_n + data.walk_slot[j]] * np.sqrt(data.walk_dt[j])
+                step = cam[:, :2, m, ms.walk.start + data.walk_slot[j]] * np.sqrt(data.walk_dt[j])
                 later = np.flatnonzero((data.camera == m) & (data.years >= data.years[v]))
                 walk[:, :, later] += step[:, :, None]
             out["walk"] = walk
             drift = drift + walk
         if plan.jitter:
             jitter = np.stack(
-                [cam[:, :2, data.camera[u], plan.jitter_base + data.unit_slot[u]] for u in range(plan.n_units)], axis=-1
+                [cam[:, :2, data.camera[u], ms.jitter.start + data.unit_slot[u]] for u in range(plan.n_units)], axis=-1
             )
             out["jitter"] = jitter  # (S, 2, U)
             drift = drift + jitter
         theta[:, :2] += drift[..., None]
-    sphere = g[:, 0, c_n + 1 : c_n + 1 + plan.n_spheres]
+    sphere = g[:, 0, gs.sphere]
     out["sphere_log_scale"] = sphere
     state = None
     if plan.n_campaigns:  # a common effect on every gain measured in a campaign, not extrapolated
-        state = g[:, 0, c_n + 1 + plan.n_spheres :]
+        state = g[:, 0, gs.campaign]
         out["campaign_state"] = state
     if plan.shared:  # the camera's repeating error: not the camera, but in what its units report
-        unscaled = np.einsum("kmcd,skmd->smkc", data.shared_chol, cam[:, :, :, plan.shared_base :])
+        unscaled = np.einsum("kmcd,skmd->smkc", data.shared_chol, cam[:, :, :, ms.shared])
         out["shared_error"] = np.swapaxes(scale_directions(plan, unscaled, kappa[:, None]), 1, 2)  # (S, K, M, C)
     out["theta"] = theta
     observed = theta.copy()

@@ -42,7 +42,8 @@ def prior_fleet(plan: Plan, data: FleetData, rng: np.random.Generator, design=No
     g = rng.standard_normal(data.prior_var_g.shape) * np.sqrt(data.prior_var_g)  # (K, G)
     x_m = sc * rng.standard_normal(sc.shape)
     h_g, h_m, _ = design_of(plan, data) if design is None else design
-    own = np.arange(plan.block) < plan.shared_base  # the camera's shared error is part of the units' error
+    own = np.ones(plan.block, bool)
+    own[plan.m.shared] = False  # the camera's shared error is part of the units' error
     per_unit = x_m[:, data.camera, :]
     theta = np.einsum("kucg,kg->kuc", h_g, g) + np.einsum("kucb,kub->kuc", h_m * own, per_unit)
     shared = np.einsum("kucb,kub->ukc", h_m * ~own, per_unit)
@@ -50,9 +51,9 @@ def prior_fleet(plan: Plan, data: FleetData, rng: np.random.Generator, design=No
     noise = np.einsum("uqr,ur->uq", data.chol, z).reshape(plan.n_units, k_n, plan.n_channels)
     y = np.transpose(theta, (1, 0, 2)) + scale_directions(plan, noise + shared, kappa)  # T (L e + Sigma^1/2 z)
     truth = {name: np.atleast_1d(v) for name, v in hyper.items()}
-    truth["mu"] = g[:, : plan.n_channels]
-    c_n = plan.n_channels
-    truth["camera_level"] = g[:, :c_n] + x_m[:, 0, :1] + x_m[:, 0, 1 : 1 + c_n]  # the first camera's, (K, C)
+    gs, ms = plan.g, plan.m
+    truth["mu"] = g[:, gs.mu]
+    truth["camera_level"] = g[:, gs.mu] + x_m[:, 0, ms.a, None] + x_m[:, 0, ms.b]  # the first camera's, (K, C)
     return truth, y
 
 

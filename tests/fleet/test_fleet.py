@@ -697,3 +697,33 @@ def test_a_filtered_frame_reads_as_its_rows(small_fleet):
     fleet = fleet_from_frame(kept, source="filtered")
     assert sum(len(u.table.frame) for u in fleet.units) == len(kept)
     assert {u.campaign.date().isoformat() for u in fleet.units} == {"2024-03-01", "2025-03-01"}
+
+
+def test_the_named_latent_slots_tile_the_vectors_and_the_scales_follow_them():
+    """Every global and camera slot is named once (no overlap, no gap), and the slot scales come in
+    the camera slots' order, so design, scales, draws and SBC read one layout."""
+    from bayescal.fleet.model import Plan, block_scales
+
+    plan = Plan(
+        n_kinds=3, n_channels=3, n_cameras=4, n_units=8, n_spheres=2, n_walk=3, max_walk=2, drift=True,
+        walk=True, pooling="partial", spread_prior=1.0, rate_prior=1.0, walk_prior=1.0, max_units=3,
+        shared=True, n_campaigns=3,
+    )  # fmt: skip
+
+    def indices(slots):
+        return [i for s in slots for i in ([s] if isinstance(s, int) else range(s.start, s.stop))]
+
+    assert sorted(indices(plan.g)) == list(range(plan.n_global))
+    assert sorted(indices(plan.m)) == list(range(plan.block))
+    m = plan.m
+    assert (len(range(m.walk.start, m.walk.stop)), len(range(m.jitter.start, m.jitter.stop))) == (2, 3)
+    hyper = {
+        "sigma_camera": np.full(3, 0.1), "sigma_channel": np.full(3, 0.2), "rate_sd": np.full(2, 0.3),
+        "walk_sd": np.full(2, 0.4), "jitter_sd": np.full(2, 0.5),
+    }  # fmt: skip
+    scales = block_scales(plan, hyper)
+    assert scales.shape == (3, plan.block)
+    assert np.all(scales[:2, m.a] == 0.1) and np.all(scales[:2, m.b] == 0.2) and np.all(scales[:2, m.r] == 0.3)
+    assert (
+        np.all(scales[:2, m.walk] == 0.4) and np.all(scales[:2, m.jitter] == 0.5) and np.all(scales[:, m.shared] == 1)
+    )
