@@ -572,25 +572,37 @@ def _integrated():
     return integrated
 
 
+def factor_blocks(sc, a, xp):
+    """The one factorisation of the posterior precision that every path shares (the marginal
+    likelihood and its gradient, the conditional draws, the leave-one-out densities).
+
+    ``sc``: slot scales ``(..., K, M, B)``; ``a``: the weighted Gram arrays (:func:`.excess.weighted`),
+    leading dims broadcast (draws).  With ``P_mm = I + S G_mm S = L_m L_m'``, returns ``L_m``,
+    ``L_m^-1``, ``Y_g = L_m^-1 S G_mg``, ``y_b = L_m^-1 S b_m`` and the factor ``L_s`` of the Schur
+    complement ``G_gg + D - Y_g' Y_g`` (summed over cameras).
+    """
+    g_mg = xp.swapaxes(a["g_gm"], -1, -2)  # (..., K, M, B, G)
+    p_mm = sc[..., :, None] * a["g_mm"] * sc[..., None, :] + xp.eye(sc.shape[-1])
+    l_m = xp.linalg.cholesky(p_mm)
+    inv_l = inverse_lower(l_m, xp)
+    y_g = inv_l @ (sc[..., :, None] * g_mg)  # L_m^-1 P_mg
+    y_b = xp.einsum("...ij,...j->...i", inv_l, sc * a["b_m"])
+    schur = a["g_gg"] + _diag(1.0 / a["prior_var_g"], xp) - xp.einsum("...mbg,...mbh->...gh", y_g, y_g)
+    return l_m, inv_l, y_g, y_b, xp.linalg.cholesky(schur)
+
+
+def inverse_lower(low, xp):
+    """``L^-1`` of batched lower-triangular factors."""
+    return solve_lower(low, xp.broadcast_to(xp.eye(low.shape[-1]), low.shape), xp)
+
+
 def integrated_value(sc, a):
     """The value of :func:`_integrated` and the pieces its gradient reuses (JAX; reverse-mode
     differentiable too, which is the slower path the closed form replaces)."""
     import jax.numpy as jnp
-    import jax.scipy.linalg as jsl
 
-    def inverse_factor(low):
-        eye = jnp.broadcast_to(jnp.eye(low.shape[-1]), low.shape)
-        return jsl.solve_triangular(low, eye, lower=True)
-
-    g_mg = jnp.swapaxes(a["g_gm"], -1, -2)  # (K, M, B, G)
-    p_mm = sc[..., :, None] * a["g_mm"] * sc[..., None, :] + jnp.eye(sc.shape[-1])
-    l_m = jnp.linalg.cholesky(p_mm)
-    inv_l = inverse_factor(l_m)
-    y_g = inv_l @ (sc[..., :, None] * g_mg)  # L_m^-1 P_mg
-    y_b = jnp.einsum("kmij,kmj->kmi", inv_l, sc * a["b_m"])
-    schur = a["g_gg"] + _diag(1.0 / a["prior_var_g"], jnp) - jnp.einsum("kmbg,kmbh->kgh", y_g, y_g)
-    l_s = jnp.linalg.cholesky(schur)
-    inv_s = inverse_factor(l_s)
+    l_m, inv_l, y_g, y_b, l_s = factor_blocks(sc, a, jnp)
+    inv_s = inverse_lower(l_s, jnp)
     v = jnp.einsum("kgh,kh->kg", inv_s, a["b_g"] - jnp.einsum("kmbg,kmb->kg", y_g, y_b))
     mu_g = jnp.einsum("khg,kh->kg", inv_s, v)
     mu_m = jnp.einsum("kmji,kmj->kmi", inv_l, y_b - jnp.einsum("kmbg,kg->kmb", y_g, mu_g))
@@ -602,22 +614,16 @@ def integrated_value(sc, a):
 
 
 def factorise(plan, sc, a, xp):
-    """The factorisation shared by the conditional draws and the leave-one-out densities.
+    """What the conditional draws and the leave-one-out densities read, from :func:`factor_blocks`.
 
     ``sc``: ``(..., K, M, B)``; ``a``: the weighted Gram arrays (:func:`.excess.weighted`), leading
     dims broadcast (draws).  Returns ``S b_m``, the factors of ``P_mm`` and of the Schur
     complement, the reduced global vector, ``P_gm`` and ``P_mm^-1 P_mg``.
     """
-    p_mm = sc[..., :, None] * a["g_mm"] * sc[..., None, :] + xp.eye(plan.block)
-    l_m = xp.linalg.cholesky(p_mm)
-    p_gm = a["g_gm"] * sc[..., None, :]  # (..., K, M, G, B)
-    bm_s = sc * a["b_m"]
-    x_mg = solve_chol(l_m, xp.swapaxes(p_gm, -1, -2), xp)  # (..., K, M, B, G)
-    x_b = solve_chol(l_m, bm_s, xp)
-    schur = a["g_gg"] + _diag(1.0 / a["prior_var_g"], xp) - xp.einsum("...mgb,...mbh->...gh", p_gm, x_mg)
-    l_s = xp.linalg.cholesky(schur)
-    b_g2 = a["b_g"] - xp.einsum("...mgb,...mb->...g", p_gm, x_b)
-    return bm_s, l_m, l_s, b_g2, p_gm, x_mg
+    l_m, inv_l, y_g, y_b, l_s = factor_blocks(sc, a, xp)
+    x_mg = xp.swapaxes(inv_l, -1, -2) @ y_g  # P_mm^-1 P_mg, (..., K, M, B, G)
+    b_g2 = a["b_g"] - xp.einsum("...mbg,...mb->...g", y_g, y_b)  # b_g - P_gm P_mm^-1 S b_m
+    return sc * a["b_m"], l_m, l_s, b_g2, a["g_gm"] * sc[..., None, :], x_mg
 
 
 def _diag(v, xp):
