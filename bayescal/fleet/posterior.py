@@ -660,29 +660,30 @@ def fit_fleet(
 def compare_pooling(fleet: FleetTable, spec: ModelSpec, fits: UnitFits | None = None, seed: int = 0) -> pd.DataFrame:
     """No, partial and complete pooling compared by PSIS leave-one-unit-out (stage one shared).
 
-    Columns: ``elpd_loo``, ``se``, ``elpd_diff`` (minus the best), ``p_loo``, ``n_high_k``,
-    ``divergences``; one row per pooling, best first.  ``fits``: stage one, fitted here when not given.
+    Columns: ``elpd_loo``, ``se``, ``elpd_diff`` and ``dse`` (against the best, as
+    :func:`arviz_stats.compare` ranks them, the same as :func:`~bayescal.fitting.select.compare_specs`),
+    ``weight`` (stacking), ``p_loo``, ``n_high_k``, ``divergences``; one row per pooling, best first.
+    ``fits``: stage one, fitted here when not given.
     """
+    import arviz_stats
+
     if fits is None:
         fits = fit_units(fleet, spec, seed=seed)
-    rows = {}
+    rows, elpd = {}, {}
     for pooling in ("none", "partial", "complete"):
         s = spec.replace(fleet={"pooling": pooling})
         fit = fit_fleet(fleet, s, seed=seed, fits=fits)
         loo = loo_of(fit.plan, fit.data, fit.draws)
-        rows[pooling] = {k: v for k, v in loo.items() if k != "pointwise"} | {
+        elpd[pooling] = loo["elpd_data"]
+        rows[pooling] = {
+            "p_loo": loo["p_loo"],
+            "n_high_k": loo["n_high_k"],
             "divergences": fit.draws.diagnostics["divergences"],
-            "_pointwise": loo["pointwise"],
         }
-    best = max(rows, key=lambda k: rows[k]["elpd_loo"])
-    for r in rows.values():
-        diff = r["_pointwise"] - rows[best]["_pointwise"]
-        r["elpd_diff"] = float(diff.sum())
-        r["dse"] = float(np.sqrt(len(diff) * np.var(diff)))
-    table = pd.DataFrame({k: {c: v for c, v in r.items() if c != "_pointwise"} for k, r in rows.items()}).T
-    return table.sort_values("elpd_loo", ascending=False)[
-        ["elpd_loo", "se", "elpd_diff", "dse", "p_loo", "n_high_k", "divergences"]
-    ]
+    ranked = arviz_stats.compare(elpd, round_to="none")
+    table = ranked.rename(columns={"elpd": "elpd_loo"})[["elpd_loo", "se", "elpd_diff", "dse", "weight"]]
+    table = table.join(pd.DataFrame(rows).T)
+    return table[["elpd_loo", "se", "elpd_diff", "dse", "weight", "p_loo", "n_high_k", "divergences"]]
 
 
 def safe_name(name: str) -> str:

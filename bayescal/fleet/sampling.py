@@ -453,7 +453,8 @@ def _mixed(d: dict, inference: InferenceSpec) -> bool:
 
 
 def loo_of(plan: Plan, data: FleetData, draws: FleetDraws) -> dict:
-    """PSIS leave-one-unit-out: ``elpd_loo``, its ``se``, ``p_loo`` and units with Pareto k > 0.7.
+    """PSIS leave-one-unit-out: ``elpd_loo``, its ``se``, ``p_loo``, units with Pareto k > 0.7 and
+    arviz's ``ELPDData`` (``"elpd_data"``, what :func:`arviz_stats.compare` ranks).
 
     Each draw of the scales contributes ``log p(y_u | y_-u, h)`` with every latent integrated
     out (:mod:`.loo`), so the importance weights only move the scales; ``p_loo`` is the
@@ -481,4 +482,5 @@ def loo_of(plan: Plan, data: FleetData, draws: FleetDraws) -> dict:
         "p_loo": lppd - float(loo.elpd),
         "n_high_k": int(np.sum(np.asarray(loo.pareto_k) > 0.7)),
         "pointwise": np.asarray(loo.elpd_i),
+        "elpd_data": loo,
     }

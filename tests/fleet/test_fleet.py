@@ -727,3 +727,17 @@ def test_the_named_latent_slots_tile_the_vectors_and_the_scales_follow_them():
     assert (
         np.all(scales[:2, m.walk] == 0.4) and np.all(scales[:2, m.jitter] == 0.5) and np.all(scales[:, m.shared] == 1)
     )
+
+
+@pytest.mark.slow  # stage one and three stage-two fits (about a minute)
+def test_partial_pooling_wins_on_a_fleet_that_has_a_spread(small_fleet):
+    """The small fleet's cameras differ by a spread: partial pooling ranks first by arviz's compare,
+    no pooling and complete pooling behind it by more than 2 se of the difference."""
+    from bayescal.fleet.posterior import compare_pooling
+
+    fleet = fleet_from_frame(small_fleet[0].astype(str), source="small fleet")
+    table = compare_pooling(fleet, _spec(), seed=3)
+    assert list(table.index)[0] == "partial" and table.loc["partial", "elpd_diff"] == 0.0
+    for other in ("none", "complete"):
+        assert -table.loc[other, "elpd_diff"] > 2 * table.loc[other, "dse"], table
+    assert np.isclose(table["weight"].sum(), 1.0)
