@@ -3,7 +3,7 @@
 A template fleet from the independent simulator (6 cameras, 3 yearly campaigns, one
 camera swept at 3 levels, one absent from the last campaign) is fitted by stage one;
 its structure and its units' covariances then serve ``n`` fleets drawn from the
-stage-two prior (:mod:`bayescal.fleet.sbc`), each refitted with the shipped fleet
+stage-two prior (:mod:`bayescal.validation.fleet_sbc`), each refitted with the shipped fleet
 settings.  Per quantity (the sampled scales, the type means, the first camera's
 levels): chi-square p-value of the rank histogram (10 bins) and 95 % coverage.
 
@@ -22,10 +22,10 @@ import numpy as np
 from bayescal import load_spec
 from bayescal._config import enable_numerics
 from bayescal.fleet.model import fleet_data
-from bayescal.fleet.sbc import run_fleet_sbc
 from bayescal.fleet.stage1 import fit_units
 from bayescal.fleet.units import fleet_from_frame
 from bayescal.validation.fleet import SMALL_FLEET, simulate_fleet
+from bayescal.validation.fleet_sbc import run_fleet_sbc
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -69,7 +69,8 @@ def main() -> None:
         "",
         f"- smallest uniformity p-value: {summ.p_uniform.min():.3g} over {len(summ)} quantities "
         f"(Bonferroni 0.01 level: {0.01 / len(summ):.2g})",
-        f"- mean 95 % coverage: {summ.coverage.mean():.3f} (range {summ.coverage.min():.2f}-{summ.coverage.max():.2f})",
+        f"- mean 95 % coverage: {summ.coverage95.mean():.3f} "
+        f"(range {summ.coverage95.min():.2f}-{summ.coverage95.max():.2f})",
         f"- divergences: {int(d['divergences'].sum())} in {len(d)} fits; max R-hat {d['max_rhat'].max():.4f}; "
         f"min ESS {float(np.minimum(d['min_ess_bulk'], d['min_ess_tail']).min()):.0f}",
         f"- retried after a divergent transition (at {spec.inference.retry_target_accept}): "
@@ -83,7 +84,7 @@ def main() -> None:
         "| quantity | p_uniform | coverage | mean rank |",
         "|---|---|---|---|",
     ]
-    lines += [f"| {q} | {r.p_uniform:.3g} | {r.coverage:.2f} | {r.mean_rank:.3f} |" for q, r in summ.iterrows()]
+    lines += [f"| {q} | {r.p_uniform:.3g} | {r.coverage95:.2f} | {r.mean_rank:.3f} |" for q, r in summ.iterrows()]
     (out / f"{args.out}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

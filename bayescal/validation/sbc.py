@@ -41,7 +41,7 @@ from bayescal.model.assemble import CalibrationModel
 from bayescal.model.data import check_levels_per_channel
 from bayescal.report.text import markdown_table
 
-__all__ = ["CAMERA_CLASS_PRIORS", "SBCResult", "prior_datasets", "rank_statistics", "run_sbc"]
+__all__ = ["CAMERA_CLASS_PRIORS", "RankStatistics", "SBCResult", "prior_datasets", "rank_statistics", "run_sbc"]
 
 #: what a lab knows about a camera class, in the model's scaled units (``spec.replace(**CAMERA_CLASS_PRIORS)``):
 #: the brightest level reads ~50 % of full scale (a factor 1.6 either way), offsets 5 +- 5 % of full scale,
@@ -53,8 +53,10 @@ CAMERA_CLASS_PRIORS = {
 
 
 @dataclass(frozen=True)
-class SBCResult:
-    """Ranks, coverage and sampler health of an SBC run.
+class RankStatistics:
+    """The ranks of the truths among their posterior draws and the coverage of the 95 % intervals,
+    with the tests every SBC run reads (a single camera's, :class:`SBCResult`; a fleet's stage two,
+    :class:`~bayescal.validation.fleet_sbc.FleetSBC`).
 
     Attributes
     ----------
@@ -62,29 +64,17 @@ class SBCResult:
         One row per simulated dataset, one column per scalar parameter:
         the number of the ``n_draws`` thinned posterior draws below the truth.
     covered : pandas.DataFrame
-        Whether each central 95 % interval (all draws) covered the truth.
-    truths : dict of str to ndarray
-        The prior draws the datasets were simulated from, ``(sim, ...)``.
+        Whether each central 95 % interval covered the truth.
     n_draws : int
         ``L``: ranks run over ``0..L``.
     bins : int
         Histogram bins of the uniformity test.
-    batch : FitBatch
-        The fits (draws, diagnostics).
-    rejected : int
-        Simulated datasets redrawn because no table could hold them.
-    seconds : float
-        Wall time of the whole run (simulation, fits, ranks).
     """
 
     ranks: pd.DataFrame
     covered: pd.DataFrame
-    truths: dict[str, np.ndarray]
     n_draws: int
     bins: int
-    batch: FitBatch
-    rejected: int
-    seconds: float
 
     @property
     def n_sims(self) -> int:
@@ -118,6 +108,39 @@ class SBCResult:
             }
         )
 
+    def plot(self, path: str | os.PathLike | None = None, title: str = ""):
+        """Rank histograms, one panel per parameter, with the 99 % band of a uniform histogram
+        (written atomically to ``path`` when given)."""
+        from bayescal.report.figures import rank_histograms, save_figure
+
+        title = title or f"SBC rank histograms ({self.n_sims} datasets; grey: 99 % band)"
+        fig = rank_histograms(self.histograms(), self.n_sims, self.p_values(), title)
+        if path is not None:
+            save_figure(fig, path)
+        return fig
+
+
+@dataclass(frozen=True, kw_only=True)
+class SBCResult(RankStatistics):
+    """Ranks, coverage and sampler health of an SBC run of a single camera's model.
+
+    Attributes (beyond :class:`RankStatistics`)
+    -------------------------------------------
+    truths : dict of str to ndarray
+        The prior draws the datasets were simulated from, ``(sim, ...)``.
+    batch : FitBatch
+        The fits (draws, diagnostics).
+    rejected : int
+        Simulated datasets redrawn because no table could hold them.
+    seconds : float
+        Wall time of the whole run (simulation, fits, ranks).
+    """
+
+    truths: dict[str, np.ndarray]
+    batch: FitBatch
+    rejected: int
+    seconds: float
+
     @property
     def divergence_free(self) -> float:
         """Fraction of fits without a divergent transition (NaN for Laplace)."""
@@ -142,15 +165,10 @@ class SBCResult:
         ]
         return "\n".join(lines) + "\n"
 
-    def plot(self, path: str | os.PathLike | None = None):
+    def plot(self, path: str | os.PathLike | None = None, title: str = ""):
         """Rank histograms, one panel per parameter, with the 99 % band of a uniform histogram."""
-        from bayescal.report.figures import rank_histograms, save_figure
-
-        title = f"SBC rank histograms ({self.n_sims} datasets, {self.batch.backend}; grey: 99 % band)"
-        fig = rank_histograms(self.histograms(), self.n_sims, self.p_values(), title)
-        if path is not None:
-            save_figure(fig, path)
-        return fig
+        title = title or f"SBC rank histograms ({self.n_sims} datasets, {self.batch.backend}; grey: 99 % band)"
+        return super().plot(path, title)
 
     def save(self, stem: str | os.PathLike) -> None:
         """Write ``<stem>.csv`` (per-parameter summary), ``<stem>.md`` and ``<stem>.png`` atomically."""

@@ -649,18 +649,18 @@ def test_stage_two_passes_simulation_based_calibration():
     """Fleets drawn from stage two's own prior (20 of them; benchmarks/fleet_sbc.py runs 100):
     rank histograms uniform (5 bins, Bonferroni over quantities) and mean 95 % coverage within
     3 Monte Carlo sd (sqrt(0.0475 / 20)) of nominal."""
-    from bayescal.fleet.sbc import run_fleet_sbc
     from bayescal.fleet.stage1 import fit_units
+    from bayescal.validation.fleet_sbc import run_fleet_sbc
 
     table, _ = simulate_fleet(_small_design(), seed=7)
     fleet = fleet_from_frame(table.astype(str), source="small")
     spec = _spec()
     fits = fit_units(fleet, spec, "laplace", seed=7)
     data, plan = fleet_data(fits, spec.fleet, spec.sphere.common_rel)
-    res = run_fleet_sbc(plan, data, spec.fleet, 20, seed=11, inference=spec.inference)
-    summ = res.summary(bins=5)
+    res = run_fleet_sbc(plan, data, spec.fleet, 20, seed=11, inference=spec.inference, bins=5)
+    summ = res.summary()
     assert summ.p_uniform.min() > 0.01 / len(summ), summ.sort_values("p_uniform").head()
-    assert abs(summ.coverage.mean() - 0.95) < 3 * np.sqrt(0.0475 / 20), summ.coverage.describe()
+    assert abs(summ.coverage95.mean() - 0.95) < 3 * np.sqrt(0.0475 / 20), summ.coverage95.describe()
 
 
 def test_fleet_sbc_statistics_flag_a_too_narrow_posterior(tmp_path):
@@ -670,7 +670,7 @@ def test_fleet_sbc_statistics_flag_a_too_narrow_posterior(tmp_path):
     histogram figure is written."""
     from scipy import stats
 
-    from bayescal.fleet.sbc import FleetSBC
+    from bayescal.validation.fleet_sbc import FleetSBC
 
     rng = np.random.default_rng(3)
     n, draws = 400, 599
@@ -678,11 +678,17 @@ def test_fleet_sbc_statistics_flag_a_too_narrow_posterior(tmp_path):
     narrow = np.clip(stats.norm.cdf(2.0 * stats.norm.ppf(q)), 0, 1)  # the truth's quantile under a half-width posterior
     ranks = pd.DataFrame({"good": np.floor(q * (draws + 1)).astype(int), "narrow": np.floor(narrow * (draws + 1))})
     covered = pd.DataFrame({"good": np.abs(q - 0.5) < 0.475, "narrow": np.abs(narrow - 0.5) < 0.475})
-    res = FleetSBC(ranks.astype(int), covered, draws, pd.DataFrame({"divergences": np.zeros(n)}))
+    res = FleetSBC(
+        ranks=ranks.astype(int),
+        covered=covered,
+        n_draws=draws,
+        bins=10,
+        diagnostics=pd.DataFrame({"divergences": np.zeros(n)}),
+    )
     summ = res.summary()
     assert summ.loc["good", "p_uniform"] > 1e-3 and summ.loc["narrow", "p_uniform"] < 1e-6
     assert abs(summ.loc["good", "mean_rank"] - 0.5) < 4 * np.sqrt(1 / 12 / n)
-    assert summ.loc["narrow", "coverage"] < 0.75 < summ.loc["good", "coverage"]
+    assert summ.loc["narrow", "coverage95"] < 0.75 < summ.loc["good", "coverage95"]
     counts = res.histograms()
     assert counts.sum().tolist() == [n, n] and counts["narrow"].iloc[[0, -1]].min() > 2 * n / 10
     res.plot(tmp_path / "ranks.png")

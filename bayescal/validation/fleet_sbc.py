@@ -8,7 +8,8 @@ direction (``T Sigma T``, :mod:`.model`).  Refitting
 each simulated fleet, the rank of every true value among its posterior draws is
 uniform when the sampler, the integration of the latents and the conditional draws
 are right.  This checks stage two as written; the Gaussian summary of stage one is
-checked against the independent fleet simulator (``benchmarks/fleet_pooling.py``).
+checked against the independent fleet simulator (``benchmarks/fleet_pooling.py``).  The ranks
+and their tests are the single-camera SBC's (:mod:`bayescal.validation.sbc`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from bayescal.fleet.excess import excess_of, scale_directions
 from bayescal.fleet.model import FleetData, Plan, block_scales, design_of, with_units
 from bayescal.fleet.sampling import sample_fleet, scale_priors
 from bayescal.model.spec import FleetSpec, InferenceSpec
+from bayescal.validation.sbc import RankStatistics, rank_statistics
 
 __all__ = ["FleetSBC", "prior_fleet", "run_fleet_sbc"]
 
@@ -57,56 +59,18 @@ def prior_fleet(plan: Plan, data: FleetData, rng: np.random.Generator, design=No
     return truth, y
 
 
-@dataclass(frozen=True)
-class FleetSBC:
-    """Ranks of the true values among the posterior draws, and the 95 % interval coverage.
+@dataclass(frozen=True, kw_only=True)
+class FleetSBC(RankStatistics):
+    """Ranks of the true values among the posterior draws and the 95 % interval coverage
+    (:class:`~bayescal.validation.sbc.RankStatistics`), with each refit's sampler ``diagnostics``."""
 
-    ``ranks``: rows per simulated fleet, a column per quantity (``name[i]``), values in
-    ``0..n_draws``.
-    """
-
-    ranks: pd.DataFrame
-    covered: pd.DataFrame
-    n_draws: int
     diagnostics: pd.DataFrame
 
-    def histograms(self, bins: int = 10) -> pd.DataFrame:
-        """Rank counts per bin (rows) and quantity (columns): ``bins`` equal bins of ``0..n_draws``."""
-        return pd.DataFrame(
-            {
-                col: np.bincount(
-                    np.minimum((self.ranks[col].to_numpy() * bins) // (self.n_draws + 1), bins - 1), minlength=bins
-                )
-                for col in self.ranks
-            }
+    def plot(self, path: str | os.PathLike | None = None, title: str = ""):
+        title = (
+            title or f"Fleet stage two: SBC rank histograms ({self.n_sims} fleets; grey: 99 % band of uniform ranks)"
         )
-
-    def summary(self, bins: int = 10) -> pd.DataFrame:
-        """Per quantity: chi-square uniformity p-value of the ranks (``bins`` bins), 95 % coverage,
-        and the mean normalised rank (0.5 when unbiased; above it, the posterior sits below the truth)."""
-        from scipy import stats
-
-        counts = self.histograms(bins)
-        return pd.DataFrame(
-            {
-                "p_uniform": [float(stats.chisquare(counts[c]).pvalue) for c in counts],
-                "coverage": self.covered[counts.columns].mean().to_numpy(dtype=float),
-                "mean_rank": (self.ranks[counts.columns].mean() / self.n_draws).to_numpy(),
-            },
-            index=counts.columns,
-        )
-
-    def plot(self, path: str | os.PathLike | None = None, bins: int = 10):
-        """The rank histograms, a panel per quantity, with the 99 % band of uniform ranks
-        (written atomically to ``path`` when given)."""
-        from bayescal.report.figures import rank_histograms, save_figure
-
-        n = len(self.ranks)
-        title = f"Fleet stage two: SBC rank histograms ({n} fleets; grey: 99 % band of uniform ranks)"
-        fig = rank_histograms(self.histograms(bins), n, self.summary(bins).p_uniform, title)
-        if path is not None:
-            save_figure(fig, path)
-        return fig
+        return super().plot(path, title)
 
 
 def run_fleet_sbc(
@@ -118,9 +82,12 @@ def run_fleet_sbc(
     thin: int = 4,
     progress=None,
     inference: InferenceSpec | None = None,
+    bins: int = 10,
 ) -> FleetSBC:
     """Simulate ``n_sims`` fleets from the prior (:func:`prior_fleet`), refit each with
-    :func:`~.sampling.sample_fleet`, and rank the truths among every ``thin``-th draw.
+    :func:`~bayescal.fleet.sampling.sample_fleet`, and rank the truths among as many evenly spaced
+    draws as every ``thin``-th one makes (:func:`~bayescal.validation.sbc.rank_statistics`; a camera's
+    level: the first camera's); ``bins``: of the uniformity test.
 
     ``inference``: the fit's policy as a user's fit runs it (chains continued while the scales'
     ESS or R-hat miss its bounds, new chains at its ``retry_target_accept`` after a divergent
@@ -129,29 +96,26 @@ def run_fleet_sbc(
     chains do not change the rank scale.
     """
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5BC]))
+    n_draws = spec.chains * len(range(0, spec.draws, thin))
     ranks, covered, diags = [], [], []
-    n_draws = 0
     design = design_of(plan, data)  # the structure is the same for every simulated fleet
     for i in range(n_sims):
         truth, y = prior_fleet(plan, data, rng, design)
         draws = sample_fleet(with_units(plan, data, y, design), plan, spec, seed=seed + i, inference=inference)
-        r, c = {}, {}
-        for name, true in truth.items():
-            post = draws.draws[name][:, : spec.draws : thin]
-            post = post.reshape((-1,) + post.shape[2:])
-            if name == "camera_level":
-                post = post[:, :, :1]
-            post = post.reshape(post.shape[0], -1)
-            true = np.asarray(true).ravel()
-            n_draws = post.shape[0]
-            lo, hi = np.quantile(post, [0.025, 0.975], axis=0)
-            for j, t in enumerate(true):
-                key = f"{name}[{j}]"
-                r[key] = int(np.sum(post[:, j] < t))
-                c[key] = bool(lo[j] <= t <= hi[j])
+        posterior = {}
+        for name in truth:
+            post = draws.draws[name][:, : spec.draws]  # (chain, draw, ...): continued chains keep the rank scale
+            posterior[name] = (post[:, :, :, 0] if name == "camera_level" else post)[None]
+        r, c = rank_statistics(posterior, {k: np.asarray(v)[None] for k, v in truth.items()}, n_draws)
         ranks.append(r)
         covered.append(c)
         diags.append(draws.diagnostics)
         if progress is not None:
             progress(i + 1)
-    return FleetSBC(pd.DataFrame(ranks), pd.DataFrame(covered), n_draws, pd.DataFrame(diags))
+    return FleetSBC(
+        ranks=pd.concat(ranks, ignore_index=True),
+        covered=pd.concat(covered, ignore_index=True),
+        n_draws=n_draws,
+        bins=bins,
+        diagnostics=pd.DataFrame(diags),
+    )
