@@ -27,11 +27,10 @@ import numpy as np
 
 from bayescal.errors import SpecError, TableError
 from bayescal.model.components.base import Effect
+from bayescal.model.components.temperature import COLUMN, ChannelCoefficients, true_coefficients
 
 __all__ = ["OffsetTemperature", "OffsetTemperatureSpec", "OffsetTemperatureTerm"]
 
-#: the table column the effect reads
-COLUMN = "temperature_c"
 #: its per-row input in ``ModelData.extra``: T - T_ref (degC; 0 where no temperature was recorded)
 INPUT = "offset_temperature.delta_c"
 
@@ -110,43 +109,20 @@ class OffsetTemperature(Effect):
     def term(cls, section: OffsetTemperatureSpec, spec, draws, frame) -> OffsetTemperatureTerm | None:
         if "offset_tc_dn_per_c" not in draws:
             return None
-        coef = np.asarray(draws["offset_tc_dn_per_c"], dtype=float)
-        channels = tuple(dict.fromkeys(str(c) for c in frame["channel"]))
-        return OffsetTemperatureTerm(coef.reshape((-1,) + coef.shape[2:]), channels, section.reference_c)
+        return OffsetTemperatureTerm.from_draws(draws["offset_tc_dn_per_c"], frame, section.reference_c)
 
     @classmethod
     def true_offset(cls, params, rows, spec) -> np.ndarray:
         """``params``: ``dn_per_c`` (one value, or a table channel -> value) and ``reference_c``
         (default 20); rows without a temperature are at the reference."""
-        known = {"dn_per_c", "reference_c"}
-        if set(params) - known:
-            raise SpecError(
-                f"[truth.effects.offset_temperature] keys {sorted(set(params) - known)}; expected {sorted(known)}"
-            )
-        coefficient = params.get("dn_per_c", 0.0)
-        if isinstance(coefficient, dict):
-            coefficient = rows["channel"].map(lambda c: float(coefficient.get(c, 0.0))).to_numpy()
-        temperature = rows[COLUMN].to_numpy(dtype=float) if COLUMN in rows else np.full(len(rows), np.nan)
-        delta = np.where(np.isfinite(temperature), temperature - float(params.get("reference_c", 20.0)), 0.0)
-        return cls.forward(np.asarray(coefficient, dtype=float), delta)
+        return cls.forward(*true_coefficients(params, rows, "offset_temperature", "dn_per_c"))
 
 
 @dataclass(frozen=True)
-class OffsetTemperatureTerm:
+class OffsetTemperatureTerm(ChannelCoefficients):
     """The coefficients' posterior ``(S, C)`` as predictions use them."""
-
-    coefficient: np.ndarray
-    channels: tuple[str, ...]
-    reference_c: float
 
     def offset(self, channel, setting, n_draws: int) -> np.ndarray:
         """``o (T - T_ref)`` DN per draw at the setting's temperature (none when it is not given)."""
-        if setting.temperature_c is None:
-            return np.zeros(n_draws)
-        if channel is None:
-            raise SpecError("a temperature-dependent offset needs the channel of the prediction")
-        c = self.coefficient[:, self.channels.index(str(channel))]
-        return OffsetTemperature.forward(c, setting.temperature_c - self.reference_c)
-
-    def flags(self, setting) -> list[str]:
-        return []  # the calibrated range flags temperatures outside the measured ones
+        here = self.at(channel, setting, "offset")
+        return np.zeros(n_draws) if here is None else OffsetTemperature.forward(*here)

@@ -26,11 +26,10 @@ import numpy as np
 
 from bayescal.errors import SpecError, TableError
 from bayescal.model.components.base import Effect
+from bayescal.model.components.temperature import COLUMN, ChannelCoefficients, true_coefficients
 
 __all__ = ["ResponsivityTemperature", "ResponsivitySpec", "ResponsivityTerm"]
 
-#: the table column the effect reads
-COLUMN = "temperature_c"
 #: its per-row input in ``ModelData.extra``: T - T_ref (degC)
 INPUT = "responsivity.delta_c"
 
@@ -110,43 +109,20 @@ class ResponsivityTemperature(Effect):
     def term(cls, section: ResponsivitySpec, spec, draws, frame) -> ResponsivityTerm | None:
         if "responsivity_tc" not in draws:
             return None
-        coef = np.asarray(draws["responsivity_tc"], dtype=float)
-        channels = tuple(dict.fromkeys(str(c) for c in frame["channel"]))
-        return ResponsivityTerm(coef.reshape((-1,) + coef.shape[2:]), channels, section.reference_c)
+        return ResponsivityTerm.from_draws(draws["responsivity_tc"], frame, section.reference_c)
 
     @classmethod
     def true_factor(cls, params, rows, spec) -> np.ndarray:
         """``params``: ``coefficient_per_c`` (one value, or a table channel -> value) and
         ``reference_c`` (default 20); rows without a temperature are at the reference."""
-        known = {"coefficient_per_c", "reference_c"}
-        if set(params) - known:
-            raise SpecError(
-                f"[truth.effects.responsivity] keys {sorted(set(params) - known)}; expected {sorted(known)}"
-            )
-        coefficient = params.get("coefficient_per_c", 0.0)
-        if isinstance(coefficient, dict):
-            coefficient = rows["channel"].map(lambda c: float(coefficient.get(c, 0.0))).to_numpy()
-        temperature = rows[COLUMN].to_numpy(dtype=float) if COLUMN in rows else np.full(len(rows), np.nan)
-        delta = np.where(np.isfinite(temperature), temperature - float(params.get("reference_c", 20.0)), 0.0)
-        return cls.forward(np.asarray(coefficient, dtype=float), delta)
+        return cls.forward(*true_coefficients(params, rows, "responsivity", "coefficient_per_c"))
 
 
 @dataclass(frozen=True)
-class ResponsivityTerm:
+class ResponsivityTerm(ChannelCoefficients):
     """The coefficient's posterior ``(S, C)`` as predictions use it."""
-
-    coefficient: np.ndarray
-    channels: tuple[str, ...]
-    reference_c: float
 
     def factor(self, channel, setting, n_draws: int) -> np.ndarray:
         """``exp(c (T - T_ref))`` per draw at the setting's temperature (its reference when not given)."""
-        if setting.temperature_c is None:
-            return np.ones(n_draws)
-        if channel is None:
-            raise SpecError("a temperature-dependent responsivity needs the channel of the prediction")
-        c = self.coefficient[:, self.channels.index(str(channel))]
-        return ResponsivityTemperature.forward(c, setting.temperature_c - self.reference_c)
-
-    def flags(self, setting) -> list[str]:
-        return []  # the calibrated range flags temperatures outside the measured ones
+        here = self.at(channel, setting, "responsivity")
+        return np.ones(n_draws) if here is None else ResponsivityTemperature.forward(*here)
