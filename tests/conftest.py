@@ -30,18 +30,33 @@ def seed000():
     return spec, design
 
 
+#: a worker keeps its compiled programs from one test module to the next while its resident memory
+#: stays below this (MB): the seed-000 structures most modules fit are then traced once, not per module
+RELEASE_ABOVE_MB = 900
+
+
+def _resident_mb() -> float:
+    try:
+        with open(f"/proc/{os.getpid()}/status") as status:
+            return next(int(line.split()[1]) / 1024 for line in status if line.startswith("VmRSS"))
+    except (OSError, StopIteration):
+        return float("inf")  # not Linux: release after every module, as before
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _release_compiled_programs():
-    """Drop every compiled program after each test module, so the run's memory stays bounded.
+    """Drop every compiled program after a test module once the worker holds more than
+    RELEASE_ABOVE_MB, so the run's memory stays bounded.
 
     Programs are cached per model structure for speed within a process; a test run builds
     hundreds of structures, which would otherwise all stay resident.
     """
     yield
-    from bayescal._caches import clear_caches
+    if _resident_mb() > RELEASE_ABOVE_MB:
+        from bayescal._caches import clear_caches
 
-    clear_caches()
-    gc.collect()
+        clear_caches()
+        gc.collect()
 
 
 @pytest.fixture
