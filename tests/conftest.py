@@ -32,7 +32,7 @@ def seed000():
 
 #: a worker keeps its compiled programs from one test module to the next while its resident memory
 #: stays below this (MB): the seed-000 structures most modules fit are then traced once, not per module
-RELEASE_ABOVE_MB = 900
+RELEASE_ABOVE_MB = 600
 
 
 def _resident_mb() -> float:
