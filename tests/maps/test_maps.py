@@ -209,10 +209,12 @@ def test_dark_current_temperature_is_fitted_and_applied(tmp_path):
 
 
 def test_same_maps_on_a_distributed_cluster(sensor, maps):
+    """The row blocks computed in another process (tasks and results serialised), two at a time on its
+    threads; one worker process, not two, keeps the test run's memory within its budget."""
     distributed = pytest.importorskip("distributed")
     root, _ = sensor
     with (
-        distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
+        distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=True, dashboard_address=None) as cluster,
         distributed.Client(cluster),
     ):
         remote = build_maps(root, rows_per_chunk=48).compute()
