@@ -378,8 +378,8 @@ def fit_diagnosed(
     if found.adopted:
         if stage is not None:
             stage(f"refitting with {' and '.join(found.adopted)}")
-        reuse = backend == "laplace" and found.fit is not None and not kw
-        final = found.fit if reuse and found.fit is not None else fit(table, found.spec, backend, seed=seed, **kw)
+        reused = found.fit if backend == "laplace" and not kw else None  # the diagnosis's own fit of that spec
+        final = reused if reused is not None else fit(table, found.spec, backend, seed=seed, **kw)
     diag = final.diagnostics.with_check("diagnosis", [], found.to_dict())
     if found.adopted and final.ok and "order" in found.changes().get("response", {}):
         diag = diag.with_check("range", *range_check(table, found.spec, final, seed))
