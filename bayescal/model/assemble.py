@@ -29,6 +29,7 @@ from bayescal.model.components import (
 )
 from bayescal.model.components.settings import KINDS
 from bayescal.model.data import Layout, ModelData, prepare
+from bayescal.model.equation import reading
 from bayescal.model.spec import ModelSpec
 
 __all__ = ["Parts", "CalibrationModel", "build_model", "numpyro_model"]
@@ -66,16 +67,24 @@ class Parts:
         """Every component, in report order."""
         return (self.response, self.dark, self.sphere, self.noise, self.saturation, self.settings, *self.effects)
 
+    def of_role(self, role: str) -> tuple[Component, ...]:
+        """The components in one place of the equation (:data:`~bayescal.model.equation.ROLES`), in
+        report order."""
+        return tuple(c for c in self.components if c.role == role)
+
     @property
     def factors(self) -> tuple[StimulusFactor, ...]:
         """The factors on the effective stimulus besides the settings': the sphere's level errors, the
         factor effects."""
-        return (self.sphere, *(e for e in self.effects if e.role == "factor"))
+        return tuple(c for c in self.of_role("factor") if isinstance(c, StimulusFactor))
 
-    @property
-    def offsets(self) -> tuple[Effect, ...]:
-        """The offset effects: DN added to every reading beside the dark level."""
-        return tuple(e for e in self.effects if e.role == "offset")
+    def sample_offsets(self, data: ModelData):
+        """Each offset term's level in the model's units (DN over full scale), sampled in turn: the dark
+        level (a core term, sampled in those units), then each offset effect (sampled in DN)."""
+        yield self.dark.sample(data)
+        for term in self.effects:
+            if term.role == "offset":
+                yield term.sample(data) / self.dark.dn_scale
 
     @property
     def structure(self) -> Parts:
@@ -116,25 +125,20 @@ def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
     """
 
     def model(data: ModelData) -> None:
+        jnp = _jnp()
         coef = parts.response.sample(data)
         multiplier, gain_factor = parts.settings.sample_with_gain(data)
-        for factor in parts.factors:
-            multiplier = multiplier * factor.sample(data)
-        x = data.u * multiplier
-        row_coef = parts.response.coefficients_at(
-            coef[data.channel], data.g_rel * gain_factor, _jnp(), charge=data.charge
-        )
-        signal = parts.response.signal(row_coef, x, _jnp())
-        rolloff = parts.response.sample_rolloff()
-        if rolloff is not None:
-            signal = parts.response.compress(signal, *rolloff, _jnp())
-        signal = numpyro.deterministic("row_signal", signal)
-        offset = parts.dark.sample(data)
-        for term in parts.offsets:  # each effect's DN, in the model's scaled units
-            offset = offset + term.sample(data) / parts.dark.dn_scale
-        var_mean = parts.noise.sample(data, signal)
-        var_pix = parts.noise.nominal_pixel_variance(data, signal, _jnp())
-        parts.saturation.observe(data, offset + signal, signal, var_pix, var_mean)
+        row_coef = parts.response.coefficients_at(coef[data.channel], data.g_rel * gain_factor, jnp, charge=data.charge)
+
+        def response(x):
+            signal = parts.response.forward(row_coef, x, parts.response.sample_rolloff(), jnp)
+            return numpyro.deterministic("row_signal", signal)
+
+        factors = (multiplier, *(f.sample(data) for f in parts.factors))
+        expected = reading(data.u, factors, response, parts.sample_offsets(data))
+        var_mean = parts.noise.sample(data, expected.signal)
+        var_pix = parts.noise.nominal_pixel_variance(data, expected.signal, jnp)
+        parts.saturation.observe(data, expected.mean, expected.signal, var_pix, var_mean)
 
     return model
 

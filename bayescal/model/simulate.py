@@ -1,8 +1,9 @@
 """Simulate calibration measurements of a camera with known truth.
 
-The forward model is the measurement equation of docs/architecture.md, section 2, evaluated by
-the components' own forward functions (the response's polynomial, the dark level, the noise, the
-sphere's and the effects' factors, the ADC's clipping), with everything the real bench adds: the
+The forward model is the measurement equation of docs/architecture.md, section 2, composed by
+its one skeleton (:func:`bayescal.model.equation.reading`) from the components' own forward
+functions (the response's polynomial, the dark level, the noise, the sphere's and the effects'
+factors and offsets, the ADC's clipping), with everything the real bench adds: the
 sphere's common scale error and per-level errors shared across channels, read/shot/quantisation
 noise averaged over frames and pixels, excess scatter, partial and full clipping at full scale
 (each pixel clips separately; the region mean of partially clipped pixels is computed in closed
@@ -26,6 +27,7 @@ from bayescal.io.table import MeasurementTable
 from bayescal.model.components import Dark, Noise, Response, Saturation, Sphere, effect
 from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.data import effective_stimulus
+from bayescal.model.equation import reading
 from bayescal.model.spec import ModelSpec
 
 __all__ = ["simulate", "Simulation"]
@@ -159,22 +161,23 @@ def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndar
     ch = rows["channel"].to_numpy()
     t, g, m = (rows[k].to_numpy(dtype=float) for k in ("exposure_s", "gain", "tdi_stages"))
     factor, added = _effects(truth, rows, spec)
-    x = effective_stimulus(stimulus, t, g, m, spec) * factor
     order = max(len(v) for v in truth.response.values())
     coef = np.zeros((len(rows), order))
     for c, values in truth.response.items():
         coef[ch == c, : len(values)] = values
     g_rel = g / spec.reference.gain
-    signal = Response.signal(Response(spec.response, len(truth.response)).coefficients_at(coef, g_rel), x)
+    coef = Response(spec.response, len(truth.response)).coefficients_at(coef, g_rel)
     warm = 1.0
     if truth.dark_doubling_c is not None and "temperature_c" in rows:
         temp = rows["temperature_c"].to_numpy(dtype=float)
         warm = Dark.doubling(np.where(np.isfinite(temp), temp - truth.temperature_ref_c, 0.0), truth.dark_doubling_c)
     offset, slope = _dark(truth, g, spec)
     offset = offset + np.array([truth.channel_offset.get(c, 0.0) for c in ch])
-    dark = Dark.level(offset, slope, t, g_rel if truth.dark_proportional else 1.0, warm) + added
-    var_t = Noise.pixel_variance(truth.read_noise_dn, truth.conversion_gain, g_rel, signal)
-    return dark + signal, signal, var_t
+    dark = Dark.level(offset, slope, t, g_rel if truth.dark_proportional else 1.0, warm)
+    u = effective_stimulus(stimulus, t, g, m, spec)
+    expected = reading(u, (factor,), lambda x: Response.forward(coef, x), (dark, added))
+    var_t = Noise.pixel_variance(truth.read_noise_dn, truth.conversion_gain, g_rel, expected.signal)
+    return expected.mean, expected.signal, var_t
 
 
 def _effects(truth: Truth, rows: pd.DataFrame, spec: ModelSpec) -> tuple[np.ndarray, np.ndarray]:

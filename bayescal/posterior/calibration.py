@@ -3,10 +3,12 @@
 The measurement equation (docs/architecture.md, section 2; seeds 000 eq. 3-5, 002 eq.
 11-12) evaluated per posterior draw ``s``::
 
-    DN = dark_s(channel, g, t) + sum_k A_sk x^k,   x = L t M g / (t_ref M_ref g_ref)
+    DN = sum_j offset_sj(channel, setting) + sum_k A_sk x^k,   x = L t M g / (t_ref M_ref g_ref) prod_i f_si
 
-with ``A_sk`` the monomial coefficients of the response at the reference
-setting (seed 000 Table 1 form), and the variance of one reading::
+with ``A_sk`` the monomial coefficients of the response at the reference setting (seed 000 Table 1
+form), the offset terms (the dark level, then the offset effects) and the factor terms (the
+settings' effective factors, then the factor effects) composed by the one skeleton
+:func:`bayescal.model.equation.reading`, and the variance of one reading::
 
     var = ((r g_rel)^2 + K g_rel S + 1/12) / n_avg + excess_s^2 + (prnu S)^2
 
@@ -31,8 +33,10 @@ import numpy as np
 from bayescal.errors import PosteriorError, SpecError, TableError
 from bayescal.model import kinds
 from bayescal.model.components import EFFECTS, Dark, FactorTerm, Noise, OffsetTerm, Response, Saturation
+from bayescal.model.components.dark import DarkTerm
 from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.components.settings import SettingFactorDraws, SettingFactors
+from bayescal.model.equation import Reading, reading
 from bayescal.model.spec import ModelSpec, Reference
 
 __all__ = ["Calibration", "Setting", "CalibratedRange"]
@@ -104,24 +108,20 @@ class Calibration:
         the reference setting), the sphere's common scale folded in.
     coef_rel : array (S, C, P)
         The same relative to the sphere's scale (what its readings say).
-    dark_offset : array (S, C, G)
-        Dark level at zero exposure (DN) per gain column.
-    dark_slope : array (S, G)
-        Dark signal per second of exposure (DN/s) per gain column.
-    dark_gains : tuple of float
-        Gain of each dark column; for a proportional dark model the single
-        column is the reference gain and scales with ``g / g_ref``.
+    dark : DarkTerm
+        The dark level's draws (:class:`~bayescal.model.components.dark.DarkTerm`): the first of the
+        offset terms.
     excess_dn : array (S,)
         Extra scatter of a region mean (DN); zeros when not modelled.
+    factors, offsets : tuple
+        The factor terms on the effective stimulus (the settings', then the factor effects') and the
+        offset effects (DN added beside the dark level); empty: none.
     """
 
     channels: tuple[str, ...]
     coef: np.ndarray
     coef_rel: np.ndarray
-    dark_offset: np.ndarray
-    dark_slope: np.ndarray
-    dark_gains: tuple[float, ...]
-    dark_proportional: bool
+    dark: DarkTerm
     excess_dn: np.ndarray
     reference: Reference
     bits: int
@@ -133,12 +133,9 @@ class Calibration:
     margin_dn: float = 0.5
     calibrated: CalibratedRange = field(default_factory=CalibratedRange)
     source: str = ""
-    temperature_ref_c: float = 20.0
-    doubling_c: np.ndarray | None = None  # (S,) dark-current doubling temperature; None: no T dependence
-    factors: tuple[FactorTerm, ...] = ()  # factors on the effective stimulus: settings, effects (empty: exact)
-    offsets: tuple[OffsetTerm, ...] = ()  # offset effects: DN added to every reading beside the dark level
+    factors: tuple[FactorTerm, ...] = ()
+    offsets: tuple[OffsetTerm, ...] = ()
     charge_nonlinearity: bool = False  # the nonlinearity is the charge's (before the gain), not the output's
-    dark_glow: np.ndarray | None = None  # (S, C) amplifier glow, DN/s^2 at the reference gain; None: not modelled
     rolloff: np.ndarray | None = None  # (S, 2) roll-off knee (DN) and power (Response.compress); None: none
     #: inversion tables computed from these draws (:mod:`bayescal.prediction.tables`); a cache, not data
     tables: dict = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -211,28 +208,16 @@ class Calibration:
 
         coef = flat(draws["A_abs"])[..., 1:]
         coef_rel = flat(draws["A_rel"])[..., 1:]
-        n = coef.shape[0]
-        proportional = spec.dark.gain_dependence == "proportional"
-        if proportional:
-            offset = flat(draws["dark_offset_ref"])[..., None]
-            slope = flat(draws["dark_slope_ref"])[..., None] if "dark_slope_ref" in draws else np.zeros((n, 1))
-            dark_gains = (spec.reference.gain,)
-        else:
-            offset = flat(draws["dark_offset"])
-            slope = flat(draws["dark_slope"]) if "dark_slope" in draws else np.zeros((n, offset.shape[-1]))
-            dark_gains = tuple(gains)
-        excess = flat(draws["excess_dn"]) if "excess_dn" in draws else np.zeros(n)
+        dark = Dark.term(spec, draws, channels, tuple(gains))
+        excess = flat(draws["excess_dn"]) if "excess_dn" in draws else np.zeros(coef.shape[0])
         read, kconv = spec.noise.read_noise_dn, spec.noise.conversion_gain
         if spec.noise.kind == "measured" and "dn_var" in frame:
-            read, kconv = _photon_transfer(frame, spec, offset, dark_gains, proportional)
+            read, kconv = _photon_transfer(frame, spec, dark)
         return cls(
             channels=channels,
             coef=coef,
             coef_rel=coef_rel,
-            dark_offset=offset,
-            dark_slope=slope,
-            dark_gains=dark_gains,
-            dark_proportional=proportional,
+            dark=dark,
             excess_dn=excess,
             reference=spec.reference,
             bits=spec.bits,
@@ -244,12 +229,9 @@ class Calibration:
             margin_dn=spec.saturation.margin_dn,
             calibrated=_calibrated_range(frame, spec),
             source=source,
-            temperature_ref_c=spec.dark.temperature_ref_c,
-            doubling_c=flat(draws["doubling_c"]) if "doubling_c" in draws else None,
             factors=_factor_terms(spec, draws, frame, flat),
             offsets=_offset_terms(spec, draws, frame),
             charge_nonlinearity=spec.response.nonlinearity_domain == "charge",
-            dark_glow=flat(draws["dark_glow_dn_s2"]) if "dark_glow_dn_s2" in draws else None,
             rolloff=(
                 np.stack([flat(draws["rolloff_knee_dn"]), flat(draws["rolloff_power"])], axis=-1)
                 if "rolloff_knee_dn" in draws
@@ -294,10 +276,14 @@ class Calibration:
             channels=channels,
             coef=full[..., 1:],
             coef_rel=full[..., 1:],
-            dark_offset=full[..., :1],
-            dark_slope=np.full((1, 1), dark_slope),
-            dark_gains=(reference.gain,),
-            dark_proportional=dark_proportional,
+            dark=DarkTerm(
+                channels=channels,
+                offset_dn=full[..., :1],
+                slope_dn_s=np.full((1, 1), dark_slope),
+                gains=(reference.gain,),
+                proportional=dark_proportional,
+                reference_gain=reference.gain,
+            ),
             excess_dn=np.zeros(1),
             reference=reference,
             bits=bits,
@@ -339,31 +325,17 @@ class Calibration:
         """The settings' effective factors (one term per kind measured off its reference)."""
         return tuple(f for f in self.factors if isinstance(f, SettingFactorDraws))
 
-    def dark_dn(self, channel: str, setting: Setting) -> np.ndarray:
-        """Dark level (DN) per draw at ``setting``: offset plus dark current times exposure
-        (:meth:`~bayescal.model.components.dark.Dark.level`).
+    def offset_terms(self) -> tuple[OffsetTerm, ...]:
+        """Every term added to a reading: the dark level, then the offset effects."""
+        return (self.dark, *self.offsets)
 
-        With a temperature model the dark current scales by ``2^((T - T_ref) / T_d)``.
-        """
-        c = self.channel_index(channel)
-        warm = 1.0
-        if self.doubling_c is not None and setting.temperature_c is not None:
-            warm = Dark.doubling(setting.temperature_c - self.temperature_ref_c, self.doubling_c)
-        if self.dark_proportional:
-            column, gain_factor = 0, setting.gain / self.dark_gains[0]
-        else:
-            matches = np.flatnonzero(np.isclose(self.dark_gains, setting.gain))
-            if matches.size == 0:
-                raise SpecError(
-                    f"gain {setting.gain:g} has no dark calibration: offsets are per gain setting "
-                    f"(dark.gain_dependence = 'per_setting'); calibrated gains: {list(self.dark_gains)}"
-                )
-            column, gain_factor = int(matches[0]), 1.0
-        offset, slope = self.dark_offset[:, c, column], self.dark_slope[:, column]
-        glow = 0.0 if self.dark_glow is None else self.dark_glow[:, c]
-        g_rel = setting.gain / self.reference.gain
-        level = Dark.level(offset, slope, setting.exposure_s, gain_factor, warm, glow=glow, g_rel=g_rel)
-        for term in self.offsets:
+    def dark_dn(self, channel: str, setting: Setting) -> np.ndarray:
+        """Level (DN) per draw at ``setting`` with no light: the offset terms' sum (the dark level, offset
+        plus dark current times exposure, :class:`~bayescal.model.components.dark.DarkTerm`, and the
+        offset effects)."""
+        self.channel_index(channel)
+        level = np.zeros(self.n_draws)
+        for term in self.offset_terms():
             level = level + term.offset(channel, setting, self.n_draws)
         return level
 
@@ -395,11 +367,11 @@ class Calibration:
         (None: the reference's; it matters only for a nonlinearity of the charge)."""
         coef = self.coefficients(channel, setting, relative)
         x = np.asarray(x, dtype=float)
-        signal = Response.signal(coef.reshape((coef.shape[0],) + (1,) * (x.ndim - 1) + coef.shape[1:]), x)
-        if self.rolloff is not None:
-            knee, power = (self.rolloff[:, i].reshape((-1,) + (1,) * (x.ndim - 1)) for i in (0, 1))
-            signal = Response.compress(signal, knee, power)
-        return signal
+        shape = (-1,) + (1,) * (x.ndim - 1)
+        rolloff = (
+            None if self.rolloff is None else (self.rolloff[:, 0].reshape(shape), self.rolloff[:, 1].reshape(shape))
+        )
+        return Response.forward(coef.reshape(shape + coef.shape[1:]), x, rolloff)
 
     def response_signal(self, signal: np.ndarray) -> np.ndarray:
         """The polynomial response's signal behind an output ``signal`` (DN, draws on the last axis):
@@ -429,17 +401,30 @@ class Calibration:
             ratio = ratio * term.factor(channel, setting, self.n_draws)
         return ratio
 
-    def expected_dn(
+    def reading(
         self, channel: str, stimulus, setting: Setting, relative: bool = False, per_draw: bool = False
-    ) -> np.ndarray:
-        """Expected DN (before clipping) per draw: ``(S,) + shape(stimulus)``; with ``per_draw`` the stimulus
-        already has the draws on its first axis (e.g. a sphere level's reading times that draw's level error)."""
+    ) -> Reading:
+        """The measurement equation per draw at ``setting`` (:func:`~bayescal.model.equation.reading`):
+        effective stimulus, signal and expected DN before clipping, each ``(S,) + shape(stimulus)``;
+        with ``per_draw`` the stimulus already has the draws on its first axis (e.g. a sphere level's
+        reading times that draw's level error)."""
         stimulus = np.asarray(stimulus, dtype=float)
         if not per_draw:
             stimulus = stimulus[None, ...]
-        x = stimulus * self.ratio(setting, channel).reshape((-1,) + (1,) * (stimulus.ndim - 1))
-        dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * (stimulus.ndim - 1))
-        return dark + self.signal_dn(channel, x, relative, setting)
+        shape = (-1,) + (1,) * (stimulus.ndim - 1)
+        return reading(
+            stimulus,
+            (self.ratio(setting, channel).reshape(shape),),
+            lambda x: self.signal_dn(channel, x, relative, setting),
+            (self.dark_dn(channel, setting).reshape(shape),),
+        )
+
+    def expected_dn(
+        self, channel: str, stimulus, setting: Setting, relative: bool = False, per_draw: bool = False
+    ) -> np.ndarray:
+        """Expected DN (before clipping) per draw: ``(S,) + shape(stimulus)`` (``per_draw``: see
+        :meth:`reading`)."""
+        return self.reading(channel, stimulus, setting, relative, per_draw).mean
 
     def sample_dn(
         self,
@@ -454,14 +439,13 @@ class Calibration:
     ) -> np.ndarray:
         """Posterior predictive readings (one per draw), clipped to ``[0, full scale]`` (``per_draw``: see
         :meth:`expected_dn`)."""
-        mean = self.expected_dn(channel, stimulus, setting, relative, per_draw)
-        dark = self.dark_dn(channel, setting).reshape((-1,) + (1,) * (mean.ndim - 1))
-        sd = np.sqrt(self.noise_var(mean - dark, setting, n_avg, prnu))
-        return Saturation.adc(mean + sd * rng.standard_normal(mean.shape), self.full_scale)
+        expected = self.reading(channel, stimulus, setting, relative, per_draw)
+        sd = np.sqrt(self.noise_var(expected.signal, setting, n_avg, prnu))
+        return Saturation.adc(expected.mean + sd * rng.standard_normal(expected.mean.shape), self.full_scale)
 
     def flags(self, setting: Setting, stimulus=None) -> list[str]:
         """Why a prediction at ``setting`` (and ``stimulus``) is an extrapolation."""
-        terms = self.factors + self.offsets
+        terms = self.factors + self.offset_terms()
         out = self.calibrated.flags(setting) + [why for term in terms for why in term.flags(setting)]
         if stimulus is not None and np.isfinite(self.calibrated.max_effective):
             x = float(np.max(stimulus)) * setting.ratio(self.reference)
@@ -515,7 +499,7 @@ def _effect_terms(spec: ModelSpec, draws: dict, frame, role: str) -> tuple:
     return tuple(t for t in terms if t is not None)
 
 
-def _photon_transfer(frame, spec, offset, dark_gains, proportional) -> tuple[float, float]:
+def _photon_transfer(frame, spec, dark: DarkTerm) -> tuple[float, float]:
     """Read noise and conversion gain at the reference gain from ``dn_var`` (least squares).
 
     ``dn_var - 1/12 = r^2 g_rel^2 + K g_rel S`` over unsaturated rows (EMVA
@@ -526,13 +510,13 @@ def _photon_transfer(frame, spec, offset, dark_gains, proportional) -> tuple[flo
     f = frame
     g_rel = f["gain"].to_numpy() / spec.reference.gain
     unsat = f["dn_mean"].to_numpy() < spec.full_scale - spec.saturation.margin_dn
-    dark = f["stimulus"].to_numpy() == 0
+    unlit = f["stimulus"].to_numpy() == 0
     base = np.zeros(len(f))
     for i, row in enumerate(f.itertuples()):
-        gi = 0 if proportional else int(np.argmin(np.abs(np.asarray(dark_gains) - row.gain)))
-        level = np.median(offset[:, :, gi])
-        base[i] = level * (g_rel[i] if proportional else 1.0)
-    signal = np.where(dark, 0.0, np.maximum(f["dn_mean"].to_numpy() - base, 0.0))
+        gi = 0 if dark.proportional else int(np.argmin(np.abs(np.asarray(dark.gains) - row.gain)))
+        level = np.median(dark.offset_dn[:, :, gi])
+        base[i] = level * (g_rel[i] if dark.proportional else 1.0)
+    signal = np.where(unlit, 0.0, np.maximum(f["dn_mean"].to_numpy() - base, 0.0))
     design = np.column_stack([g_rel**2, g_rel * signal])[unsat]
     coef = lstsq(design, (f["dn_var"].to_numpy() - QUANTISATION_DN2)[unsat]).coef
     return float(np.sqrt(max(coef[0], 0.0))), float(max(coef[1], 0.0))

@@ -9,14 +9,17 @@ A component is one physical effect of the measurement equation.  It owns
 - its conversion of scaled draws to reported quantities in physical units (``physical``),
 - the names and dims of its sampled sites and reported quantities (``sites``, ``reported``).
 
-The six core components fill fixed places in the equation (response, dark, noise, sphere,
-saturation, settings).  An :class:`Effect` is an optional term with a spec section of its own,
-in one of the equation's two places (its ``role``)::
+Every component fills a place (its ``role``) in the one skeleton of the measurement equation,
+:func:`bayescal.model.equation.reading`::
 
-    DN = dark + sum(offset effects) + S(x * prod(factor effects)) (+ noise, clipped)
+    DN = sum(offset terms) + R(u f_settings prod(factor terms)) (+ noise, observed through the ADC)
 
-a factor on the effective stimulus (``"factor"``) or a level added to every reading in DN
-(``"offset"``, present at zero exposure and zero light).  It is added to the model by one line in
+The six core components are the response (``"response"``), the dark level (an ``"offset"``), the
+sphere's level errors (a ``"factor"``), the settings' effective factors (``"settings"``), the noise
+(``"noise"``) and the ADC's clipping (``"observation"``).  An :class:`Effect` is an optional term
+with a spec section of its own, in one of the two open places: a factor on the effective stimulus
+(``"factor"``) or a level added to every reading in DN (``"offset"``, present at zero exposure and
+zero light).  It is added to the model by one line in
 :data:`bayescal.model.components.EFFECTS`, and the spec, the data, the assembly, the reported
 quantities, predictions (:class:`~bayescal.posterior.calibration.Calibration`, through its
 :class:`FactorTerm` or :class:`OffsetTerm`) and the simulator all reach it through this protocol.
@@ -56,6 +59,8 @@ class Component(ABC):
 
     #: the component's section of the model spec
     section: ClassVar[str]
+    #: its place in the measurement equation (:data:`bayescal.model.equation.ROLES`)
+    role: ClassVar[str]
     #: sampled sites -> their dims beyond (chain, draw)
     sites: ClassVar[Mapping[str, tuple[str, ...]]] = {}
     #: reported quantities (physical units) -> their dims beyond (chain, draw), in report order

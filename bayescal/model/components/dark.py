@@ -14,15 +14,17 @@ channel (the light of a read-out amplifier reaching the pixels, integrated while
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
+from bayescal.errors import SpecError
 from bayescal.model.components.base import Component
 from bayescal.model.components.priors import guide_inputs, pooled_normal, scale_prior
 
-__all__ = ["Dark", "DarkSpec"]
+__all__ = ["Dark", "DarkSpec", "DarkTerm"]
 
 OFFSET_TAU_SD = 0.01
 
@@ -82,6 +84,7 @@ class Dark(Component):
     """Offset ``b0[channel, gain]`` plus ``b1[gain] * t`` (scaled units)."""
 
     section = "dark"
+    role = "offset"
     sites = {
         "b0": ("channel", "gain_setting"),
         "b1": ("gain_setting",),
@@ -226,3 +229,90 @@ class Dark(Component):
         if "b2" in draws:
             out["dark_glow_dn_s2"] = draws["b2"] * layout.dn_scale / layout.t_scale**2
         return out
+
+    @staticmethod
+    def term(
+        spec: Any, draws: Mapping[str, np.ndarray], channels: tuple[str, ...], gains: tuple[float, ...]
+    ) -> DarkTerm:
+        """The dark level in a calibration's predictions, from the reported draws ``(chain, draw, ...)``
+        (``spec``: the model spec; ``gains``: the gain of each fitted dark column)."""
+
+        def flat(name: str) -> np.ndarray | None:
+            if name not in draws:
+                return None
+            a = np.asarray(draws[name], dtype=float)
+            return a.reshape((-1,) + a.shape[2:])
+
+        proportional = spec.dark.gain_dependence == "proportional"
+        suffix = "_ref" if proportional else ""
+        offset = flat("dark_offset" + suffix)
+        assert offset is not None, "a calibration's draws hold the dark offsets"
+        if proportional:
+            offset, gains = offset[..., None], (spec.reference.gain,)
+        slope = flat("dark_slope" + suffix)
+        if slope is None:
+            slope = np.zeros((offset.shape[0], offset.shape[-1]))
+        elif proportional:
+            slope = slope[..., None]
+        return DarkTerm(
+            channels=channels,
+            offset_dn=offset,
+            slope_dn_s=slope,
+            gains=tuple(gains),
+            proportional=proportional,
+            reference_gain=spec.reference.gain,
+            temperature_ref_c=spec.dark.temperature_ref_c,
+            doubling_c=flat("doubling_c"),
+            glow_dn_s2=flat("dark_glow_dn_s2"),
+        )
+
+
+@dataclass(frozen=True)
+class DarkTerm:
+    """The dark level's posterior as predictions use it (an
+    :class:`~bayescal.model.components.base.OffsetTerm`): :meth:`Dark.level` per draw at a setting.
+
+    ``offset_dn`` ``(S, C, G)`` and ``slope_dn_s`` ``(S, G)`` per dark column, whose gains are
+    ``gains`` (one column at the reference gain, scaling with ``g / g_ref``, when ``proportional``);
+    ``doubling_c`` ``(S,)`` the dark current's doubling temperature (None: no temperature law);
+    ``glow_dn_s2`` ``(S, C)`` the amplifier glow at the reference gain (None: not modelled).
+    """
+
+    channels: tuple[str, ...]
+    offset_dn: np.ndarray
+    slope_dn_s: np.ndarray
+    gains: tuple[float, ...]
+    proportional: bool
+    reference_gain: float
+    temperature_ref_c: float = 20.0
+    doubling_c: np.ndarray | None = None
+    glow_dn_s2: np.ndarray | None = None
+
+    def column(self, gain: float) -> tuple[int, float]:
+        """The dark column of a gain and the factor its offset scales by (a clear error for a gain with
+        no dark calibration)."""
+        if self.proportional:
+            return 0, gain / self.gains[0]
+        matches = np.flatnonzero(np.isclose(self.gains, gain))
+        if matches.size == 0:
+            raise SpecError(
+                f"gain {gain:g} has no dark calibration: offsets are per gain setting "
+                f"(dark.gain_dependence = 'per_setting'); calibrated gains: {list(self.gains)}"
+            )
+        return int(matches[0]), 1.0
+
+    def offset(self, channel: str | None, setting: Any, n_draws: int) -> np.ndarray:
+        """Dark level (DN) per draw at ``setting``; the dark current doubles every ``T_d`` degC away from
+        the reference temperature when the calibration has that law and the setting a temperature."""
+        c = self.channels.index(str(channel)) if channel is not None else 0
+        column, gain_factor = self.column(setting.gain)
+        warm = 1.0
+        if self.doubling_c is not None and setting.temperature_c is not None:
+            warm = Dark.doubling(setting.temperature_c - self.temperature_ref_c, self.doubling_c)
+        glow = 0.0 if self.glow_dn_s2 is None else self.glow_dn_s2[:, c]
+        g_rel = setting.gain / self.reference_gain
+        offset, slope = self.offset_dn[:, c, column], self.slope_dn_s[:, column]
+        return Dark.level(offset, slope, setting.exposure_s, gain_factor, warm, glow=glow, g_rel=g_rel)
+
+    def flags(self, setting: Any) -> list[str]:
+        return []  # a gain with no dark column is an error (column), not an extrapolation

@@ -51,6 +51,7 @@ class Noise(Component):
     """Per-pixel variance and variance of the row mean, in scaled units."""
 
     section = "noise"
+    role = "noise"
     sites = {"excess": ()}
     reported = {"excess_dn": ()}
 

@@ -97,6 +97,7 @@ class Response(Component):
     """Per-channel gain and (optionally pooled) nonlinearity of order ``order``."""
 
     section = "response"
+    role = "response"
     sites = {
         "G": ("channel",),
         "eta": ("channel", "nl_term"),
@@ -139,6 +140,13 @@ class Response(Component):
         for k in range(coef.shape[-1] - 1, -1, -1):
             out = (out + coef[..., k]) * x
         return out
+
+    @staticmethod
+    def forward(coef, x, rolloff=None, xp=np):
+        """The response's signal at effective stimulus ``x``: the polynomial :meth:`signal`, then the
+        roll-off towards full scale (:meth:`compress`) when ``rolloff = (knee, power)`` is given."""
+        signal = Response.signal(coef, x, xp)
+        return signal if rolloff is None else Response.compress(signal, *rolloff, xp)
 
     @staticmethod
     def compress(signal, knee, power, xp=np):

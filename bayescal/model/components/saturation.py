@@ -73,6 +73,7 @@ class Saturation(Component):
     """Likelihood of the row means, with or without clipping."""
 
     section = "saturation"
+    role = "observation"
     sites = {"prnu": ()}
     reported = {"prnu": ()}
 

@@ -84,6 +84,7 @@ class SettingFactors(StimulusFactor):
     """
 
     section = "settings"
+    role = "settings"
     sites = {"gain_log": ("gain_free",), "exposure_log": ("exposure_free",), "tdi_log": ("tdi_free",)}
     reported = {
         "setting_factor_gain": ("lit_gain_setting",),

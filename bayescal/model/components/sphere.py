@@ -49,6 +49,7 @@ class Sphere(StimulusFactor):
     """Per-level multiplicative stimulus errors ``1 + sigma_l z_l`` (none when disabled)."""
 
     section = "sphere"
+    role = "factor"
     sites = {"level_z": ("level",), "level_w": ("level", "channel")}
     reported = {"level_error": ("level",), "level_channel_error": ("level", "channel"), "sphere_scale": ()}
 
