@@ -32,7 +32,7 @@ _LAZY = {
     "fit_many": "bayescal.fitting.batch",
     "CalibratedRange": "bayescal.posterior.calibration",
     "Calibration": "bayescal.posterior.calibration",
-    "Setting": "bayescal.posterior.calibration",
+    "Setting": "bayescal.model.setting",
     "Design": "bayescal.io.design",
     "Truth": "bayescal.io.design",
     "load_design": "bayescal.io.design",
@@ -157,9 +157,10 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from bayescal.maps.stacks import load_stacks, write_emva_stacks
     from bayescal.maps.store import make_maps, read_maps, write_maps
     from bayescal.model.assemble import CalibrationModel, build_model
+    from bayescal.model.setting import Setting
     from bayescal.model.simulate import Simulation, simulate
     from bayescal.model.spec import ModelSpec, Reference, load_spec
-    from bayescal.posterior.calibration import CalibratedRange, Calibration, Setting
+    from bayescal.posterior.calibration import CalibratedRange, Calibration
     from bayescal.prediction.images import invert_image, read_image, write_radiance_maps
     from bayescal.prediction.invert import Inversion, invert, radiance_draws
     from bayescal.prediction.plan import Plan, default_window, plan_exposure

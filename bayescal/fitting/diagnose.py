@@ -34,6 +34,7 @@ from bayescal.errors import FitFailedWarning
 from bayescal.fitting.fit import fit
 from bayescal.fitting.result import Fit
 from bayescal.io.table import MeasurementTable
+from bayescal.model.components import EFFECTS
 from bayescal.model.spec import ModelSpec
 
 __all__ = ["Diagnosis", "candidates", "decide_domain", "diagnose", "fit_diagnosed", "other_domain", "MAX_STEPS"]
@@ -57,11 +58,11 @@ def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
     """The switches the library can try on ``spec`` for ``table``: name -> spec changes.
 
     Only switches the table can inform: the nonlinearity's domain needs several illuminated
-    gains; the glow dark rows at three or more exposures; a drift over the row order a table
-    without ``time_s``; an offset against temperature dark rows at two or more temperatures.
+    gains; a drift over the row order a table without ``time_s``; each optional effect says itself
+    what it needs (:meth:`~bayescal.model.components.base.Effect.candidates`: the glow dark rows at
+    three or more exposures, an offset against temperature dark rows at two or more temperatures).
     """
     frame = table.frame
-    lit = frame["stimulus"] > 0
     out: dict[str, dict] = {}
     r, d, s = spec.response, spec.dark, spec.sphere
     domain = other_domain(spec, table)
@@ -84,13 +85,8 @@ def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
             out["a dark level that drifted over time_s"] = {"dark": {"drift": True}}
         else:
             out["a dark level that drifted over the run (the rows' order)"] = {"dark": {"drift": "order"}}
-    if not d.glow and d.exposure_slope and frame.loc[~lit, "exposure_s"].nunique() >= 3:
-        out["amplifier glow (a dark signal in t^2, per channel)"] = {"dark": {"glow": True}}
-    warm = spec.effect("offset_temperature")
-    if warm.enabled is not True and "temperature_c" in frame and frame.loc[~lit, "temperature_c"].nunique() >= 2:
-        out["an offset that drifts with the sensor temperature (per channel)"] = {
-            "offset_temperature": {"enabled": True}
-        }
+    for effect in EFFECTS:  # each effect says when the table can measure it
+        out |= effect.candidates(spec.effect(effect.section), spec, frame)
     if s.channel_level_rel == 0:
         for rel in CHANNEL_LEVEL_REL:
             name = f"lamp errors that differ by channel, {rel:.1%} per level (its spectrum changes with its level)"

@@ -1,9 +1,10 @@
 """Physical quantities from scaled posterior draws.
 
 Each component reports its own quantities (``Component.physical``); this module adds the
-papers' table ``DN = A0 + A1 L + ...`` at the reference setting, which three components make
-together: the response's monomials, the dark component's level at the reference setting
-(``A0``) and the sphere's common scale folded into the coefficients (docs/architecture.md,
+papers' table ``DN = A0 + A1 L + ...`` at the reference setting, which the components make
+together: the response's monomials, the equation's offset terms at the reference setting
+(``A0``: the dark level and the offset effects, evaluated as predictions evaluate them) and the
+sphere's common scale folded into the coefficients (docs/architecture.md,
 section 4), both relative to the sphere (comparable with least squares on the same sphere
 readings) and absolute.
 """
@@ -13,8 +14,9 @@ from __future__ import annotations
 import numpy as np
 
 from bayescal.model.assemble import CalibrationModel
-from bayescal.model.components import Context, reported_dims, site_dims
+from bayescal.model.components import Context, Dark, effect_terms, reported_dims, site_dims
 from bayescal.model.components.sphere import fold_common_scale
+from bayescal.model.setting import Setting
 
 __all__ = ["physical_draws", "dims"]
 
@@ -34,21 +36,23 @@ def physical_draws(model: CalibrationModel, draws: dict[str, np.ndarray], seed: 
     out: dict[str, np.ndarray] = {}
     for component in parts.components:
         out.update(component.physical(draws, ctx))
-    ref = spec.reference
-    measured = parts.dark.proportional or ref.gain in layout.gain_values
-    a0 = np.stack(
-        [
-            parts.dark.offset_at(draws, c, ref.gain, ref.exposure_s, layout, ref.gain)
-            if measured
-            else np.full(draws["G"].shape[:2], np.nan)
-            for c in range(len(layout.channels))
-        ],
-        axis=-1,
-    )
     coef_rel = out["A_rel"].copy()
-    coef_rel[..., 0] = a0
+    coef_rel[..., 0] = _offsets_at_reference(model, out)
     coef_abs, scale = fold_common_scale(
         coef_rel, spec.sphere.common_rel, ctx.rng(0x5CA1E), spec.sphere.channel_scale_rel
     )
     out.update(gain=coef_abs[..., 1], gain_rel=coef_rel[..., 1], A_abs=coef_abs, A_rel=coef_rel, sphere_scale=scale)
     return {name: out[name] for name in reported_dims() if name in out}
+
+
+def _offsets_at_reference(model: CalibrationModel, out: dict[str, np.ndarray]) -> np.ndarray:
+    """The offset terms' sum at the reference setting (reference temperature, start of the run) per
+    channel, ``(chain, draw, C)``: the papers' ``A0`` (NaN where the reference gain has no dark rows)."""
+    spec, layout = model.spec, model.layout
+    lead = out["A_rel"].shape[:2]
+    if not (model.parts.dark.proportional or spec.reference.gain in layout.gain_values):
+        return np.full(lead + (len(layout.channels),), np.nan)
+    dark = Dark.term(spec, out, layout.channels, layout.gain_values)
+    terms = (dark, *effect_terms(spec, out, model.table.frame, "offset"))
+    ref, n = Setting.at_reference(spec.reference), int(np.prod(lead))
+    return np.stack([sum(t.offset(c, ref, n) for t in terms).reshape(lead) for c in layout.channels], axis=-1)

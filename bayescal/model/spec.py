@@ -254,7 +254,7 @@ class ModelSpec:
     @classmethod
     def from_dict(cls, data: dict[str, Any], *, source: str = "<dict>") -> ModelSpec:
         """Build a spec from nested dicts (the TOML layout); unknown keys are errors."""
-        data = dict(data)
+        data = _renamed(dict(data))
         if "effects" in data:
             raise SpecError(f"{source}: unknown key 'effects'; an effect is its own table, e.g. [responsivity]")
         effects = tuple(
@@ -297,6 +297,19 @@ class ModelSpec:
         for key in ("name", "description", "inference", "fleet"):
             d.pop(key)
         return hashlib.sha1(dumps(d).encode()).hexdigest()[:16]
+
+
+def _renamed(data: dict[str, Any]) -> dict[str, Any]:
+    """The TOML layout with the keys that moved into an effect's own section moved there (``Effect.renamed``),
+    so specs written before, such as a saved posterior's, still read; the new key wins where both are given."""
+    for e in EFFECTS:
+        for old, key in e.renamed.items():
+            section, name = old.split(".")
+            if isinstance(data.get(section), dict) and name in data[section]:
+                data[section] = dict(data[section])
+                value = data[section].pop(name)
+                data[e.section] = {key: value} | dict(data.get(e.section, {}))
+    return data
 
 
 def _instance(value: Any) -> bool:

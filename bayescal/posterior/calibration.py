@@ -32,40 +32,15 @@ import numpy as np
 
 from bayescal.errors import PosteriorError, SpecError, TableError
 from bayescal.model import kinds
-from bayescal.model.components import EFFECTS, Dark, FactorTerm, Noise, OffsetTerm, Response, Saturation
+from bayescal.model.components import Dark, FactorTerm, Noise, OffsetTerm, Response, Saturation, effect_terms
 from bayescal.model.components.dark import DarkTerm
 from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.components.settings import SettingFactorDraws, SettingFactors
 from bayescal.model.equation import Reading, reading
+from bayescal.model.setting import Setting
 from bayescal.model.spec import ModelSpec, Reference
 
 __all__ = ["Calibration", "Setting", "CalibratedRange"]
-
-
-@dataclass(frozen=True)
-class Setting:
-    """Camera setting: exposure (s), programmable gain factor, TDI stages, sensor temperature (degC).
-
-    ``temperature_c = None`` means the calibration's reference temperature
-    (it matters only for a calibration with a temperature-dependent dark current).
-    """
-
-    exposure_s: float
-    gain: float = 1.0
-    tdi_stages: float = 1.0
-    temperature_c: float | None = None
-
-    def __post_init__(self):
-        for name in ("exposure_s", "gain", "tdi_stages"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value <= 0:
-                raise SpecError(f"setting {name} must be a positive number, got {value!r}")
-        if self.temperature_c is not None and not np.isfinite(self.temperature_c):
-            raise SpecError(f"setting temperature_c must be a number, got {self.temperature_c!r}")
-
-    def ratio(self, ref: Reference) -> float:
-        """Factor from stimulus to effective stimulus: ``t M g / (t_ref M_ref g_ref)``."""
-        return (self.exposure_s * self.tdi_stages * self.gain) / (ref.exposure_s * ref.tdi_stages * ref.gain)
 
 
 @dataclass(frozen=True)
@@ -486,17 +461,12 @@ def _calibrated_range(frame, spec: ModelSpec) -> CalibratedRange:
 
 def _factor_terms(spec: ModelSpec, draws: dict, frame, flat) -> tuple[FactorTerm, ...]:
     """The factors on the effective stimulus that predictions apply: the settings', then each factor effect's."""
-    return SettingFactors.terms(draws, frame, spec.reference, flat) + _effect_terms(spec, draws, frame, "factor")
+    return SettingFactors.terms(draws, frame, spec.reference, flat) + effect_terms(spec, draws, frame, "factor")
 
 
 def _offset_terms(spec: ModelSpec, draws: dict, frame) -> tuple[OffsetTerm, ...]:
     """The offset effects that predictions add to the dark level."""
-    return _effect_terms(spec, draws, frame, "offset")
-
-
-def _effect_terms(spec: ModelSpec, draws: dict, frame, role: str) -> tuple:
-    terms = (cls.term(spec.effect(cls.section), spec, draws, frame) for cls in EFFECTS if cls.role == role)
-    return tuple(t for t in terms if t is not None)
+    return effect_terms(spec, draws, frame, "offset")
 
 
 def _photon_transfer(frame, spec, dark: DarkTerm) -> tuple[float, float]:

@@ -9,7 +9,7 @@ import pytest
 
 import bayescal as bc
 from bayescal.fitting.diagnose import candidates
-from bayescal.model.components.dark import Dark
+from bayescal.model.components.glow import Glow
 from bayescal.model.components.sphere import fold_common_scale
 from bayescal.validation import BenchCamera, Departures, simulate_bench, with_held_out
 from tests.conftest import MODELS
@@ -90,8 +90,7 @@ def test_each_departure_is_named(departures, adopted, temperatures):
 def test_glow_and_channel_scale_terms():
     """The glow adds glow t^2 g / g_ref to the dark level; a channel's own scale error widens its
     absolute coefficients by its relative sd (log-normal, independent of the common scale)."""
-    level = Dark.level(10.0, 2.0, 0.5, glow=4.0, g_rel=2.0)
-    assert level == pytest.approx(10.0 + 2.0 * 0.5 + 4.0 * 0.25 * 2.0)
+    assert Glow.forward(4.0, 0.5, 2.0) == pytest.approx(4.0 * 0.25 * 2.0)
     rng = np.random.default_rng(0)
     coef = np.ones((4, 20_000, 3, 2))
     _, common = fold_common_scale(coef, 0.0, rng, channel_rel=0.02)

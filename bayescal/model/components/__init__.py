@@ -11,9 +11,13 @@ Adding an effect is its module, its tests and one line here (see :mod:`.base`).
 """
 
 from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
 
 from bayescal.model.components.base import Component, Context, Effect, FactorTerm, OffsetTerm, StimulusFactor
 from bayescal.model.components.dark import Dark, DarkSpec
+from bayescal.model.components.glow import Glow
 from bayescal.model.components.noise import Noise, NoiseSpec
 from bayescal.model.components.offset_temperature import OffsetTemperature
 from bayescal.model.components.response import Response, ResponseSpec
@@ -45,6 +49,7 @@ __all__ = [
     "SphereSpec",
     "StimulusFactor",
     "effect",
+    "effect_terms",
     "reported_dims",
     "site_dims",
 ]
@@ -53,12 +58,19 @@ __all__ = [
 CORE: tuple[type[Component], ...] = (Response, Dark, Sphere, Noise, Saturation, SettingFactors)
 
 #: the optional effects with a spec section of their own: factors on the effective stimulus, or offsets (their role)
-EFFECTS: tuple[type[Effect], ...] = (ResponsivityTemperature, ShutterOffset, OffsetTemperature)
+EFFECTS: tuple[type[Effect], ...] = (ResponsivityTemperature, ShutterOffset, OffsetTemperature, Glow)
 
 
 def effect(section: str) -> type[Effect]:
     """The registered effect whose spec section is ``section``."""
     return {e.section: e for e in EFFECTS}[section]
+
+
+def effect_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any, role: str) -> tuple[Any, ...]:
+    """The effects of one role (``"factor"`` or ``"offset"``) in a calibration's predictions, from the
+    reported draws ``(chain, draw, ...)`` and the table they were fitted to (:meth:`Effect.term`)."""
+    terms = (cls.term(spec.effect(cls.section), spec, draws, frame) for cls in EFFECTS if cls.role == role)
+    return tuple(t for t in terms if t is not None)
 
 
 def site_dims() -> Mapping[str, tuple[str, ...]]:

@@ -121,6 +121,8 @@ class Effect(StimulusFactor):
     spec_class: ClassVar[type]
     #: where it enters the measurement equation: "factor" (on the effective stimulus) or "offset" (DN added)
     role: ClassVar[str] = "factor"
+    #: keys of older specs that this section now holds: ``"section.key"`` -> its field here
+    renamed: ClassVar[Mapping[str, str]] = {}
 
     @classmethod
     @abstractmethod
@@ -129,6 +131,13 @@ class Effect(StimulusFactor):
 
     def inputs(self, frame: pd.DataFrame) -> dict[str, np.ndarray]:
         """Per-row inputs the component reads from the table (into ``ModelData.extra``)."""
+        return {}
+
+    @classmethod
+    def candidates(cls, section: Any, spec: Any, frame: pd.DataFrame) -> dict[str, dict]:
+        """What the diagnosis (:func:`bayescal.fitting.diagnose.candidates`) may try when a model without
+        this effect does not fit ``frame``: a name -> the spec change that adds it, for each form the table
+        can measure (empty: none, or it is already in the model)."""
         return {}
 
     @classmethod

@@ -4,12 +4,11 @@ Physics: seed 000 section 5.1 (about 50 DN at gain step 1, over 450 DN at step 4
 over 2.7-10 ms; channel colour barely matters), seed 002 section 4.1 (dark roughly linear in
 integration time, doubling every ~7 degC) and eq. 12 (offset scales with the video gain)::
 
-    dark = (offset + slope t 2^((T - T_ref) / T_d)) g_factor + glow_c t^2 g / g_ref + drift * time
+    dark = (offset + slope t 2^((T - T_ref) / T_d)) g_factor + drift * time
 
-The ``glow`` term is a dark signal that grows with the square of the exposure and differs by
-channel (the light of a read-out amplifier reaching the pixels, integrated while it runs).
-
-:meth:`Dark.level` is that equation; the model, predictions and the simulator all call it.
+:meth:`Dark.level` is that equation; the model, predictions and the simulator all call it.  It is the
+first of the equation's offset terms; a dark signal that grows faster than the exposure (amplifier
+glow) is an offset effect of its own (:mod:`bayescal.model.components.glow`).
 """
 
 from __future__ import annotations
@@ -54,11 +53,6 @@ class DarkSpec:
     ``"order"`` fits it over the rows' order in the table, for a table that
     lists its rows as they were measured but has no ``time_s``.
 
-    ``glow``: a per-channel dark signal ``glow_c t^2`` (DN at the reference
-    gain, scaling with the gain like a signal), prior Normal(0,
-    ``slope_prior_sd``) per longest exposure squared: amplifier glow, which
-    a dark slope linear in exposure misreads as an offset.
-
     Priors (fractions of full scale): each offset Normal(``offset_prior_mean``,
     ``offset_prior_sd``), each dark slope (per longest exposure of the table)
     Normal(0, ``slope_prior_sd``).
@@ -76,7 +70,6 @@ class DarkSpec:
     slope_prior_sd: float = 0.05
     drift: Literal[True, False, "auto", "order"] = "auto"
     drift_prior_dn: float = 5.0
-    glow: bool = False
 
 
 @dataclass(frozen=True)
@@ -94,7 +87,6 @@ class Dark(Component):
         "b0_mu_w": ("gain_setting",),
         "T_d": (),
         "drift": (),
-        "b2": ("channel",),
     }
     reported = {
         "dark_offset": ("channel", "gain_setting"),
@@ -103,7 +95,6 @@ class Dark(Component):
         "dark_slope_ref": (),
         "doubling_c": (),
         "dark_drift_dn": (),
-        "dark_glow_dn_s2": ("channel",),
     }
 
     spec: DarkSpec
@@ -118,18 +109,13 @@ class Dark(Component):
 
     # ------------------------------------------------------------------ physics
     @staticmethod
-    def level(
-        offset, slope, exposure, gain_factor=1.0, temperature_factor=1.0, drift=0.0, time=0.0, glow=0.0, g_rel=1.0
-    ):
-        """Dark level ``(offset + slope t f_T) g_factor + glow t^2 g_rel + drift time`` (any units, any array
-        namespace).
+    def level(offset, slope, exposure, gain_factor=1.0, temperature_factor=1.0, drift=0.0, time=0.0):
+        """Dark level ``(offset + slope t f_T) g_factor + drift time`` (any units, any array namespace).
 
         ``gain_factor`` is ``g / g_ref`` for an offset proportional to gain (else 1);
-        ``temperature_factor`` the dark current's :meth:`doubling` factor; ``glow`` the channel's
-        amplifier glow at the reference gain, which scales with ``g_rel = g / g_ref``.
+        ``temperature_factor`` the dark current's :meth:`doubling` factor.
         """
-        base = (offset + slope * (exposure * temperature_factor)) * gain_factor + drift * time
-        return base + glow * exposure * exposure * g_rel
+        return (offset + slope * (exposure * temperature_factor)) * gain_factor + drift * time
 
     @staticmethod
     def doubling(delta_c, doubling_c, xp=np):
@@ -173,13 +159,7 @@ class Dark(Component):
         drift = 0.0
         if self.spec.drift:  # a linear drift over the run, common to every channel and gain
             drift = numpyro.sample("drift", dist.Normal(0.0, self.spec.drift_prior_dn / self.dn_scale))
-        glow = 0.0
-        if self.spec.glow:  # amplifier glow: per channel, quadratic in exposure
-            b2 = numpyro.sample("b2", dist.Normal(0.0, self.spec.slope_prior_sd).expand([self.n_channels]).to_event(1))
-            glow = b2[data.channel]
-        return self.level(
-            b0[data.channel, column], slope, data.t, gain_factor, warm, drift, data.time, glow, data.g_rel
-        )
+        return self.level(b0[data.channel, column], slope, data.t, gain_factor, warm, drift, data.time)
 
     # ---------------------------------------------------------------- reporting
     def describe(self) -> str:
@@ -189,21 +169,7 @@ class Dark(Component):
             + (", doubling with temperature" if self.spec.temperature else "")
             + (", drift over the run" if self.spec.drift else "")
             + (" (row order)" if self.spec.drift == "order" else "")
-            + (", amplifier glow (t^2, per channel)" if self.spec.glow else "")
         )
-
-    def offset_at(self, draws, channel: int, gain: float, exposure_s: float, layout, ref_gain: float) -> np.ndarray:
-        """Dark level in DN at one channel, gain factor and exposure (reference temperature, start of the
-        run), per draw: the papers' ``A0`` at the reference setting."""
-        if self.proportional:
-            column, gain_factor = 0, gain / ref_gain
-        else:
-            column, gain_factor = layout.gain_values.index(gain), 1.0
-        slope = draws["b1"][..., column] if self.spec.exposure_slope else 0.0
-        glow = draws["b2"][..., channel] if "b2" in draws else 0.0
-        t = exposure_s / layout.t_scale
-        level = self.level(draws["b0"][..., channel, column], slope, t, gain_factor, glow=glow, g_rel=gain / ref_gain)
-        return level * layout.dn_scale
 
     def physical(self, draws, ctx) -> dict[str, np.ndarray]:
         """Dark offset in DN at zero exposure and its exposure slope in DN/s.
@@ -226,8 +192,6 @@ class Dark(Component):
             out["doubling_c"] = draws["T_d"]
         if "drift" in draws:
             out["dark_drift_dn"] = draws["drift"] * self.dn_scale
-        if "b2" in draws:
-            out["dark_glow_dn_s2"] = draws["b2"] * layout.dn_scale / layout.t_scale**2
         return out
 
     @staticmethod
@@ -263,7 +227,6 @@ class Dark(Component):
             reference_gain=spec.reference.gain,
             temperature_ref_c=spec.dark.temperature_ref_c,
             doubling_c=flat("doubling_c"),
-            glow_dn_s2=flat("dark_glow_dn_s2"),
         )
 
 
@@ -274,8 +237,7 @@ class DarkTerm:
 
     ``offset_dn`` ``(S, C, G)`` and ``slope_dn_s`` ``(S, G)`` per dark column, whose gains are
     ``gains`` (one column at the reference gain, scaling with ``g / g_ref``, when ``proportional``);
-    ``doubling_c`` ``(S,)`` the dark current's doubling temperature (None: no temperature law);
-    ``glow_dn_s2`` ``(S, C)`` the amplifier glow at the reference gain (None: not modelled).
+    ``doubling_c`` ``(S,)`` the dark current's doubling temperature (None: no temperature law).
     """
 
     channels: tuple[str, ...]
@@ -286,7 +248,6 @@ class DarkTerm:
     reference_gain: float
     temperature_ref_c: float = 20.0
     doubling_c: np.ndarray | None = None
-    glow_dn_s2: np.ndarray | None = None
 
     def column(self, gain: float) -> tuple[int, float]:
         """The dark column of a gain and the factor its offset scales by (a clear error for a gain with
@@ -309,10 +270,8 @@ class DarkTerm:
         warm = 1.0
         if self.doubling_c is not None and setting.temperature_c is not None:
             warm = Dark.doubling(setting.temperature_c - self.temperature_ref_c, self.doubling_c)
-        glow = 0.0 if self.glow_dn_s2 is None else self.glow_dn_s2[:, c]
-        g_rel = setting.gain / self.reference_gain
         offset, slope = self.offset_dn[:, c, column], self.slope_dn_s[:, column]
-        return Dark.level(offset, slope, setting.exposure_s, gain_factor, warm, glow=glow, g_rel=g_rel)
+        return Dark.level(offset, slope, setting.exposure_s, gain_factor, warm)
 
     def flags(self, setting: Any) -> list[str]:
         return []  # a gain with no dark column is an error (column), not an extrapolation

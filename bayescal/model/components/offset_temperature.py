@@ -87,6 +87,15 @@ class OffsetTemperature(Effect):
             return None
         return cls(section, frame["channel"].nunique())
 
+    @classmethod
+    def candidates(cls, section: OffsetTemperatureSpec, spec, frame) -> dict[str, dict]:
+        """Offered when the dark rows span two or more temperatures."""
+        dark = frame["stimulus"].to_numpy() == 0
+        if section.enabled is True or COLUMN not in frame or frame.loc[dark, COLUMN].nunique() < 2:
+            return {}
+        name = "an offset that drifts with the sensor temperature (per channel)"
+        return {name: {"offset_temperature": {"enabled": True}}}
+
     def inputs(self, frame) -> dict[str, np.ndarray]:
         temperature = frame[COLUMN].to_numpy(dtype=float)
         return {INPUT: np.where(np.isfinite(temperature), temperature - self.spec.reference_c, 0.0)}
