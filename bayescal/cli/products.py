@@ -8,7 +8,7 @@ from pathlib import Path
 
 def setting_of(args, cal):
     """The camera setting the arguments give (None for a posterior without camera settings: a film)."""
-    from bayescal.posterior.calibration import Setting
+    from bayescal.model.setting import Setting
 
     ref = cal.reference
     if ref is None:
@@ -181,7 +181,8 @@ def _invert_with_maps(args, cal, setting, path, image) -> int:
 def cmd_plan(args) -> int:
     import numpy as np
 
-    from bayescal.posterior.calibration import Calibration, Setting
+    from bayescal.model.setting import Setting
+    from bayescal.posterior.calibration import Calibration
     from bayescal.prediction.plan import plan_exposure
 
     cal = Calibration.load(args.posterior)

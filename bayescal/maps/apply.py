@@ -364,7 +364,7 @@ def _apply_plane(
 
 def _radiance_lut(m: MapSet, cal, channel, setting, exposure_s, grid):
     """Channel signal above dark -> radiance median and systematic bounds, on a uniform grid."""
-    from bayescal.posterior.calibration import Setting
+    from bayescal.model.setting import Setting
     from bayescal.prediction.invert import invert
 
     cal.channel_index(channel)  # a clear error for a channel the calibration does not hold

@@ -40,7 +40,7 @@ from bayescal.model.equation import Reading, reading
 from bayescal.model.setting import Setting
 from bayescal.model.spec import ModelSpec, Reference
 
-__all__ = ["Calibration", "Setting", "CalibratedRange"]
+__all__ = ["Calibration", "CalibratedRange"]
 
 
 @dataclass(frozen=True)

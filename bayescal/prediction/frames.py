@@ -97,7 +97,7 @@ def invert_frame(job: FrameJob, cal=None, image=None) -> dict:
     """
     from bayescal.io import checks
     from bayescal.io.files import read_image
-    from bayescal.posterior.calibration import Setting
+    from bayescal.model.setting import Setting
     from bayescal.prediction.images import invert_image, write_radiance_maps
 
     cal = cal if cal is not None else _calibration(job.posterior)
@@ -171,7 +171,7 @@ def invert_frames(
 
 
 def _setting(job: FrameJob):
-    from bayescal.posterior.calibration import Setting
+    from bayescal.model.setting import Setting
 
     return Setting(job.exposure_s, job.gain, job.tdi_stages, job.temperature_c)
 

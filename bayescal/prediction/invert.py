@@ -45,7 +45,8 @@ import pandas as pd
 
 from bayescal.errors import TableError
 from bayescal.model.components import Response
-from bayescal.posterior.calibration import Calibration, Setting
+from bayescal.model.setting import Setting
+from bayescal.posterior.calibration import Calibration
 
 __all__ = ["Inversion", "invert", "radiance_draws", "BOUND_NAMES"]
 

@@ -27,7 +27,8 @@ import pandas as pd
 
 from bayescal.errors import SpecError
 from bayescal.model.components import Saturation
-from bayescal.posterior.calibration import Calibration, Setting
+from bayescal.model.setting import Setting
+from bayescal.posterior.calibration import Calibration
 from bayescal.prediction.invert import radiance_draws
 
 __all__ = ["Plan", "plan_exposure", "default_window"]

@@ -16,7 +16,8 @@ import numpy as np
 import pandas as pd
 
 from bayescal.model.components import Saturation
-from bayescal.posterior.calibration import Calibration, Setting
+from bayescal.model.setting import Setting
+from bayescal.posterior.calibration import Calibration
 
 __all__ = ["predict"]
 

@@ -27,7 +27,8 @@ import numpy as np
 import pandas as pd
 
 from bayescal.errors import SpecError
-from bayescal.posterior.calibration import Calibration, Setting
+from bayescal.model.setting import Setting
+from bayescal.posterior.calibration import Calibration
 from bayescal.prediction.images import channel_views, invert_image
 from bayescal.prediction.invert import noise_normals, radiance_draws, sorted_quantiles
 

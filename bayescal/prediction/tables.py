@@ -39,7 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bayescal.posterior.calibration import Calibration, Setting
+from bayescal.model.setting import Setting
+from bayescal.posterior.calibration import Calibration
 
 __all__ = ["RECORD", "TableKey", "table", "fill", "gather", "restore_tables", "persist_tables"]
 

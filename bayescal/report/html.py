@@ -32,7 +32,8 @@ from bayescal.inference import registry as backends
 from bayescal.io.files import write_json_atomic, write_text_atomic
 from bayescal.model import kinds
 from bayescal.model.components import Saturation, Sphere
-from bayescal.posterior.calibration import Calibration, Setting
+from bayescal.model.setting import Setting
+from bayescal.posterior.calibration import Calibration
 from bayescal.prediction.invert import invert, radiance_draws
 from bayescal.prediction.readings import predict
 from bayescal.report.figures import colours as colour_cycle

@@ -527,7 +527,8 @@ def test_predictions_for_new_cameras_dates_and_drift(fitted):
 def test_fleet_directory_round_trip_and_calibration_export(fitted, tmp_path):
     from bayescal.fleet import FleetFit
     from bayescal.fleet.export import write_calibration
-    from bayescal.posterior.calibration import Calibration, Setting
+    from bayescal.model.setting import Setting
+    from bayescal.posterior.calibration import Calibration
 
     fleet, result, truth = fitted
     result.save(tmp_path / "fleet")

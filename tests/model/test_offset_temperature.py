@@ -10,7 +10,7 @@ import pytest
 
 import bayescal as bc
 from bayescal.model.components.offset_temperature import OffsetTemperature
-from bayescal.posterior.calibration import Setting
+from bayescal.model.setting import Setting
 
 TRUE = {"R": 0.8, "G": -0.5, "B": 0.3}  # DN per degC
 TEMPERATURES = (10.0, 20.0, 30.0)

@@ -46,7 +46,7 @@ KINDS = {
     "exposure": ("exposure_s", "eset", "exposure_tolerance"),
     "tdi": ("tdi_stages", "mset", "tdi_tolerance"),
 }
-#: kind -> the attribute of a camera setting (:class:`~bayescal.posterior.calibration.Setting`) it is
+#: kind -> the attribute of a camera setting (:class:`~bayescal.model.setting.Setting`) it is
 SETTING_ATTRIBUTE = {"gain": "gain", "exposure": "exposure_s", "tdi": "tdi_stages"}
 
 
