@@ -118,13 +118,12 @@ def plan_exposure(
     for t, g, m in itertools.product(exposures, gains, tdi_stages):
         setting = Setting(float(t), float(g), float(m))
         try:
-            dark = cal.dark_dn(channel, setting)
+            expected = cal.reading(channel, stim, setting, per_draw=True)  # one stimulus per draw
         except SpecError:
             continue  # a gain without dark calibration cannot be planned for
-        x = stim * cal.ratio(setting, channel)
-        signal = cal.signal_dn(channel, x, setting=setting)
-        sd = np.sqrt(cal.noise_var(signal, setting, n_avg))
-        reading = Saturation.adc(dark + signal + sd * rng.standard_normal(signal.shape), cal.full_scale)
+        sd = np.sqrt(cal.noise_var(expected.signal, setting, n_avg))
+        noise = sd * rng.standard_normal(expected.signal.shape)
+        reading = Saturation.adc(expected.mean + noise, cal.full_scale)
         why = cal.flags(setting, float(np.median(stim)))
         if why and not allow_extrapolation:
             continue
