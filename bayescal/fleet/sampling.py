@@ -25,6 +25,7 @@ from bayescal.fleet.model import (
     log_marginal,
     standard_normals,
 )
+from bayescal.inference.chains import Phased, retry_target, run_phases
 from bayescal.model.spec import FleetSpec, InferenceSpec
 
 __all__ = ["sample_fleet", "FleetDraws", "laplace_start", "loo_of", "unit_log_likelihood"]
@@ -100,6 +101,7 @@ def _exp(logs: dict, xp) -> dict:
     return {name: 1.0 + xp.exp(v) if name == "excess" else xp.exp(v) for name, v in logs.items()}
 
 
+@lru_cache(maxsize=16)
 def _potential(plan: Plan):
     """The potential of stage two: minus the log posterior density of the unconstrained scales
     ``u`` (HalfNormal priors, with the log Jacobian), ``potential(u, arrays)``."""
@@ -155,46 +157,6 @@ def laplace_start(plan: Plan, arrays: dict) -> tuple[np.ndarray, np.ndarray] | N
     return found.x, (v / w) @ v.T
 
 
-@lru_cache(maxsize=64)
-def _step_program(plan: Plan, n: int, adapt: bool):
-    """``n`` NUTS transitions from ``u`` with a fixed diagonal inverse mass matrix ``imm``,
-    compiled once per structure: ``run(key, u, imm, step, target, arrays) -> (u_last, step, z,
-    diverging, steps)``.  With ``adapt`` the step size follows dual averaging toward the target
-    acceptance and the returned step is its average (warmup); else it stays (draws)."""
-    import jax
-    import jax.numpy as jnp
-    from numpyro.infer.hmc import hmc
-    from numpyro.infer.hmc_util import dual_averaging
-
-    potential = _potential(plan)
-    da_init, da_update = dual_averaging()
-
-    def run(key, u, imm, step, target, arrays):
-        init_kernel, sample_kernel = hmc(potential_fn=lambda x: potential(x, arrays), algo="NUTS")
-        state = init_kernel(
-            u,
-            num_warmup=0,
-            step_size=step,
-            inverse_mass_matrix=imm,
-            adapt_step_size=False,
-            adapt_mass_matrix=False,
-            rng_key=key,
-        )
-
-        def transition(carry, _):
-            st, da = carry
-            st = sample_kernel(st)
-            if adapt:
-                da = da_update(target - st.accept_prob, da)
-                st = st._replace(adapt_state=st.adapt_state._replace(step_size=jnp.exp(da[0])))
-            return (st, da), (st.z, st.diverging, st.num_steps)
-
-        (state, da), out = jax.lax.scan(transition, (state, da_init(jnp.log(10.0 * step))), None, length=n)
-        return (state.z, jnp.exp(da[1]) if adapt else step, *out)
-
-    return jax.jit(run)
-
-
 #: conditional draws per call of the compiled program (its memory: ~80 kB per draw and camera)
 DRAW_CHUNK = 256
 
@@ -231,40 +193,20 @@ def _latents(plan: Plan, hyper: dict, args: dict, rng: np.random.Generator) -> t
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
-def _run_chains(
-    plan: Plan, spec: FleetSpec, args: dict, seed: int, inference: InferenceSpec | None = None
-) -> tuple[np.ndarray, int, int]:
-    """Every chain on a thread pool; unconstrained draws ``(chain, draw, dim)``, the
-    divergent transitions among them and the gradient evaluations of warmup and draws.
+def _run_chains(plan: Plan, spec: FleetSpec, args: dict, seed: int, inference: InferenceSpec | None = None) -> Phased:
+    """Every chain by the inference layer's phased NUTS (:func:`bayescal.inference.chains.run_phases`):
+    unconstrained draws ``(chain, draw, dim)``, their divergent transitions and the gradient
+    evaluations of warmup and draws.
 
-    The chains start from draws of the Laplace approximation at the mode
-    (:func:`laplace_start`), whose variances are the diagonal mass matrix throughout; warmup
-    adapts only the step size, by dual averaging toward ``spec.target_accept``, in two halves:
-    the second restarts from the first's average once the chains have left their starting
-    points, and the chains then share the geometric mean of their averaged steps.  Variances
-    estimated from the warmup's draws (per chain, or pooled over the chains) made it worse:
-    the long left tails of scales near zero inflate them, and the step size shrinks to resolve
-    the bulk.  On a 20-camera fleet this warmup of 150 iterations and 500 draws per chain took
-    2.1x fewer gradient evaluations than numpyro's window adaptation (300 iterations, 600 draws,
-    fixed starts), both at ESS above 500 (``benchmarks/results/fleet_speed.md``).  Tried and not
-    kept, on the same fleet: the Laplace covariance as a dense mass (seeds 1-6: the same ~15
-    leapfrog steps per transition, lower ESS, every seed continued: 62,000-98,000 gradients
-    against 38,000); warmup of 100 (seeds 1-8: 3 then needed 1000 draws); 400 draws continued by
-    200 (seeds 1-8: 2 % fewer gradients on average).  On seeds 1-2, 452-467 of every chain's 500
-    transitions took 15 steps at the adapted step of 0.32-0.34.  Sampling the walk and the
-    jitter as their total and ratio (:func:`_log_scales`) instead of their own logs raised the
-    adapted step to 0.38-0.41 and cut the gradients per fit by about 10 % (seeds 1-16: 33,300-
-    36,400 per fit of 500 draws, one fit of 16 continued to 1000; 0 divergences in every fit).
-
-    With ``inference``: while the sampled scales' bulk or tail ESS (of the scales, as the
-    verdict judges them, not their logs) is below its ``min_ess`` or their R-hat above its
-    ``max_rhat``, every chain continues for another ``spec.draws`` draws from its last draw
-    with the same step and mass, at most ``spec.extend`` times: a posterior ridge (a drift that
-    is either trend or walk) mixes slowly on some seeds, and more draws, not a failed fit, are
-    the remedy.
+    The chains start from draws of the Laplace approximation at the mode (:func:`laplace_start`),
+    whose variances are the diagonal mass matrix throughout; warmup adapts the step size toward
+    ``spec.target_accept``.  With ``inference``, while the sampled scales' bulk or tail ESS (of the
+    scales, as the verdict judges them, not their logs) is below its ``min_ess`` or their R-hat above
+    its ``max_rhat``, every chain continues for another ``spec.draws`` draws, ``spec.extend`` times at
+    most: a posterior ridge (a drift that is either trend or walk) mixes slowly on some seeds, and
+    more draws, not a failed fit, are the remedy.  What was measured against other warmups, dense
+    masses and other coordinates is in ``benchmarks/results/fleet_speed.md``.
     """
-    from concurrent.futures import ThreadPoolExecutor
-
     import jax
 
     dim = sum(plan.sampled().values())
@@ -275,43 +217,24 @@ def _run_chains(
         u0, imm = np.log(0.5) + rng.uniform(-0.5, 0.5, (spec.chains, dim)), np.ones(dim)
     else:
         u0, imm = rng.multivariate_normal(start[0], start[1], size=spec.chains), np.diag(start[1])
-    key = jax.random.PRNGKey(seed)
 
-    with ThreadPoolExecutor(max(1, min(THREADS, spec.chains))) as pool:
+    def mixed(z: np.ndarray) -> bool:  # the scales as the verdict judges them
+        assert inference is not None
+        return _mixed(_convergence(_unpack(plan, z, args["walk_interval"])), inference)
 
-        def phase(n: int, adapt: bool, us, steps, tag: int):
-            run = _step_program(plan, n, adapt)
-            target = np.float64(spec.target_accept)
-            keys = jax.random.split(jax.random.fold_in(key, tag), spec.chains)
-
-            # block in the thread: JAX dispatches asynchronously, and unblocked chains would queue on one core
-            def one(c: int):
-                return jax.block_until_ready(run(keys[c], us[c], imm, steps[c], target, arrays))
-
-            return list(pool.map(one, range(spec.chains)))
-
-        half = spec.warmup // 2
-        # with the Laplace variances as the mass, the posterior is about unit scale: a first step of 0.5
-        settle = phase(half, True, u0, np.full(spec.chains, 0.5), 0)
-        warm = phase(spec.warmup - half, True, [o[0] for o in settle], [o[1] for o in settle], 1)
-        steps = np.full(spec.chains, np.exp(np.mean([np.log(o[1]) for o in warm])))  # one for all: they share the mass
-        outs = phase(spec.draws, False, [o[0] for o in warm], steps, 2)
-        z = [[np.asarray(o[2])] for o in outs]
-        divergences = int(sum(np.sum(np.asarray(o[3])) for o in outs))
-        gradients = int(sum(np.sum(np.asarray(o[4])) for o in settle + warm + outs))
-        for i in range(spec.extend if inference is not None else 0):
-            assert inference is not None  # the loop runs only with it
-            so_far = np.stack([np.concatenate(c) for c in z])
-            if _mixed(
-                _convergence(_unpack(plan, so_far, args["walk_interval"])), inference
-            ):  # the scales as the verdict judges them
-                break
-            outs = phase(spec.draws, False, [o[0] for o in outs], steps, 3 + i)  # the chains go on
-            for c, o in enumerate(outs):
-                z[c].append(np.asarray(o[2]))
-            divergences += int(sum(np.sum(np.asarray(o[3])) for o in outs))
-            gradients += int(sum(np.sum(np.asarray(o[4])) for o in outs))
-    return np.stack([np.concatenate(c) for c in z]), divergences, gradients
+    return run_phases(
+        _potential(plan),
+        arrays,
+        u0,
+        imm,
+        warmup=spec.warmup,
+        draws=spec.draws,
+        target_accept=spec.target_accept,
+        seed=seed,
+        extend=spec.extend if inference is not None else 0,
+        mixed=mixed if inference is not None else None,
+        threads=THREADS,
+    )
 
 
 @computes
@@ -322,8 +245,9 @@ def sample_fleet(
 
     With ``inference`` the chains continue (``spec.extend`` times at most) while the scales miss
     its ``min_ess`` or ``max_rhat``, and chains with a divergent transition are run again (new
-    chains) at its ``retry_target_accept``, as a unit's own NUTS fit is; the diagnostics then
-    say ``first_divergences`` and ``retried_at``.
+    chains) by the retry policy a unit's own NUTS fit follows
+    (:func:`bayescal.inference.chains.retry_target`); the diagnostics then say
+    ``first_divergences`` and ``retried_at``.
     """
 
     args = data.arrays()
@@ -332,10 +256,12 @@ def sample_fleet(
     first, retried_at = None, 0.0
     if sampled:
         z, divergences, gradients = _run_chains(plan, spec, args, seed, inference)
-        retry = retried_at = inference.retry_target_accept if inference is not None else 0.0
-        if divergences and retry > spec.target_accept:  # new chains with smaller steps, as a unit's fit does
-            first = divergences
-            z, divergences, more = _run_chains(plan, replace(spec, target_accept=retry), args, seed + 1, inference)
+        retry = inference.retry_target_accept if inference is not None else 0.0
+        run = spec
+        while (target := retry_target(run.target_accept, retry, divergences / z[..., 0].size)) is not None:
+            first = divergences if first is None else first
+            run, retried_at = replace(run, target_accept=target), target  # new chains with smaller steps
+            z, divergences, more = _run_chains(plan, run, args, seed + (2 if target > retry else 1), inference)
             gradients += more
         n = z.shape[1]
         hyper = _unpack(plan, z.reshape(chains * n, -1), args["walk_interval"])

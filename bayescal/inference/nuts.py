@@ -27,6 +27,7 @@ import numpy as np
 from numpyro.infer.hmc import hmc
 
 from bayescal._config import computes
+from bayescal.inference.chains import retry_target
 from bayescal.inference.laplace import covariance_factor
 from bayescal.inference.program import Program, ProgramData
 from bayescal.model.spec import InferenceSpec
@@ -47,13 +48,6 @@ class NutsDraws(NamedTuple):
     first_divergences: int = 0
     #: the target acceptance of the run these draws come from, when it was a rerun (0: none)
     rerun_at: float = 0.0
-
-
-#: the last rerun's target acceptance: a few divergences left after the spec's retry get one more run here
-LAST_RETRY_ACCEPT = 0.99
-#: ... when they are at most this fraction of the draws (more: a posterior smaller steps will not mend).
-#: The pooled seed-000 channels (model-simulated seed 5) left 50 of 4000 (1.25 %) at 0.95 and none at 0.99
-LAST_RETRY_MAX_FRACTION = 0.02
 
 
 _EVERY = 50
@@ -215,14 +209,14 @@ def _run_many(program, datas, starts, covs, settings, seeds, done) -> list[NutsD
         return NutsDraws(z, diverging, steps, accept, energy, step)
 
     outs = [stacked(i) for i in range(len(datas))]
-    again = [i for i, o in enumerate(outs) if o.diverging.any()]
-    target = settings.retry_target_accept
-    if settings.target_accept >= target > 0:  # the spec's retry was this run: one last, smaller-step one
-        target = LAST_RETRY_ACCEPT
-        again = [i for i in again if outs[i].diverging.mean() <= LAST_RETRY_MAX_FRACTION]
-    if again and target > settings.target_accept:
-        # divergences: a region of high curvature (a scale near zero); rerun those datasets with smaller steps:
-        # at the spec's retry_target_accept, and once more at LAST_RETRY_ACCEPT if some are left
+    # divergences: rerun those datasets with smaller steps (the one retry policy, inference.chains.retry_target);
+    # the target depends on the settings alone, so every dataset that is rerun gets the same one
+    policy = (settings.target_accept, settings.retry_target_accept)
+    targets = {i: retry_target(*policy, float(o.diverging.mean())) for i, o in enumerate(outs)}
+    again = [i for i, t in targets.items() if t is not None]
+    if again:
+        target = targets[again[0]]
+        assert target is not None
         retry = replace(settings, target_accept=target, retry_target_accept=target)
         redo = _run_many(
             program,

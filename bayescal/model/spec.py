@@ -79,7 +79,7 @@ class InferenceSpec:
     again (new chains) with this target acceptance, i.e. smaller steps, and
     the retry is recorded in the diagnostics; divergences left after it get one
     last run at 0.99 when they are at most 2 % of the draws
-    (:data:`bayescal.inference.nuts.LAST_RETRY_ACCEPT`); the last run's
+    (:data:`bayescal.inference.chains.LAST_RETRY_ACCEPT`); the last run's
     own diagnostics decide the verdict (0 turns retrying off).  On 200 simulated 8-bit,
     2-12 DN datasets, 0.8 left 8 fits with 1-7 divergences; 0.95 left none.  The pooled
     seed-000 channels (``pooled = true``) leave 2-6 at 0.95 and none at 0.99.

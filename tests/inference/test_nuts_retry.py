@@ -4,7 +4,7 @@ whose divergences depend only on the target acceptance (so the rule, not a poste
 import numpy as np
 import pytest
 
-from bayescal.inference import nuts
+from bayescal.inference import chains, nuts
 from bayescal.model.spec import InferenceSpec
 
 DRAWS, DIM = 1000, 2
@@ -31,7 +31,7 @@ def _stand_in(left_at_retry: float):
     ("left", "final_target", "final_divergences"),
     [
         # a few left, as the pooled seed-000 channels left 1.25 % at 0.95: one last run at 0.99 mends them
-        (0.0125, nuts.LAST_RETRY_ACCEPT, 0),
+        (0.0125, chains.LAST_RETRY_ACCEPT, 0),
         (0.03, 0.95, 4 * 30),  # more than LAST_RETRY_MAX_FRACTION (2 %): no last run; the fit keeps them and fails
     ],
 )
@@ -42,3 +42,21 @@ def test_a_last_rerun_only_for_a_few_divergences(monkeypatch, left, final_target
     assert out.first_divergences == 4 * 60  # the first run's count is what the verdict reports as retried
     assert out.rerun_at == pytest.approx(final_target)
     assert int(out.diverging.sum()) == final_divergences
+
+
+@pytest.mark.parametrize(
+    ("target", "retry", "fraction", "expected"),
+    [
+        (0.8, 0.95, 0.0, None),  # no divergence: the run stands
+        (0.8, 0.95, 0.3, 0.95),  # any: the spec's retry, however many
+        (0.8, 0.0, 0.3, None),  # retries switched off
+        (0.95, 0.95, 0.02, chains.LAST_RETRY_ACCEPT),  # the retry left a few: one last run
+        (0.95, 0.95, 0.021, None),  # ... not when more than LAST_RETRY_MAX_FRACTION are left
+        (0.99, 0.95, 0.01, None),  # the last run stands
+        (0.99, 0.99, 0.01, None),
+        (0.95, 0.9, 0.01, chains.LAST_RETRY_ACCEPT),  # a run above the spec's retry counts as the retry
+    ],
+)
+def test_the_one_retry_policy(target, retry, fraction, expected):
+    """What a camera's NUTS fit and the fleet's stage two both decide by."""
+    assert chains.retry_target(target, retry, fraction) == expected
