@@ -31,7 +31,7 @@ conditional, per draw.  The latent precision is block-arrowhead (one block per c
 plus the fleet-wide ``mu``, ``rho`` and sphere terms), so each evaluation costs one
 small Cholesky factor per camera and one of the global block (Schur complement).
 Quantities are standardised by the spread of the units' estimates, so one set of
-hyperpriors (:class:`~bayescal.model.spec.FleetSpec`) serves gains and offsets
+hyperpriors (:class:`~bayescal.fleet.spec.FleetSpec`) serves gains and offsets
 (docs/architecture.md, section 8).
 """
 
@@ -44,9 +44,9 @@ from typing import NamedTuple
 import numpy as np
 
 from bayescal.fleet.excess import direction_sizes, excess_of, kind_blocks, projections, weighted
+from bayescal.fleet.spec import FleetSpec
 from bayescal.fleet.stage1 import UnitFits
 from bayescal.fleet.units import to_years
-from bayescal.model.spec import FleetSpec
 
 __all__ = [
     "FleetData",
@@ -164,7 +164,7 @@ class Plan:
     def excess_priors(self) -> np.ndarray:
         """The half-normal prior scale of each ``kappa - 1``, ``(K * D,)`` (kind-major, as sampled):
         ``excess_together_prior`` where the channels move together in a kind with a campaign jitter
-        (that excess and the jitter are one value per unit each, :class:`~bayescal.model.spec.FleetSpec`),
+        (that excess and the jitter are one value per unit each, :class:`~bayescal.fleet.spec.FleetSpec`),
         ``excess_prior`` elsewhere."""
         scales = np.full((self.n_kinds, self.n_directions), self.excess_prior)
         if self.jitter:

@@ -25,8 +25,9 @@ from bayescal.fleet.model import (
     log_marginal,
     standard_normals,
 )
+from bayescal.fleet.spec import FleetSpec
 from bayescal.inference.chains import Phased, retry_target, run_phases
-from bayescal.model.spec import FleetSpec, InferenceSpec
+from bayescal.model.spec import InferenceSpec
 
 __all__ = ["sample_fleet", "FleetDraws", "laplace_start", "loo_of", "unit_log_likelihood"]
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib
 import os
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -36,7 +37,8 @@ __all__ = [
     "SaturationSpec",
     "SettingsSpec",
     "InferenceSpec",
-    "FleetSpec",
+    "SECTIONS",
+    "section_class",
     "load_spec",
 ]
 
@@ -106,100 +108,6 @@ class InferenceSpec:
 
 
 @dataclass(frozen=True)
-class FleetSpec:
-    """The hierarchy over a fleet of cameras of one type (docs/architecture.md, section 8).
-
-    Per channel, a camera's log gain, offset and nonlinearity are its type's
-    mean plus a camera effect shared by its channels plus a channel-within-
-    camera deviation, each Normal with a fitted spread (``pooling``: ``partial``;
-    ``none`` fits every camera on its own; ``complete`` makes the cameras one).
-    With campaigns at two or more dates, log gain and offset drift: a trend per
-    camera, its rate drawn from the fleet's (mean and spread fitted), plus a
-    random walk (``walk``) whose diffusion is fitted, plus each campaign's own state of
-    the camera (``jitter``: a remount, a thermal state; Normal, its spread fitted, prior
-    HalfNormal(``jitter_prior``)).  ``sphere``: the sphere's
-    common scale error, a factor on every gain of one campaign
-    (``per_campaign``: recalibrated between campaigns) or of all
-    (``shared``: one calibration for every campaign), log-normal with the
-    spec's ``[sphere] common_rel``.
-
-    Hyperpriors, in units of the spread of the units' estimates of each
-    quantity (so they adapt to gains and offsets alike): spreads
-    HalfNormal(``spread_prior``), the mean drift rate Normal(0,
-    ``rate_prior``) per year, the rates' spread HalfNormal(``rate_prior``) per
-    year and the walk's diffusion HalfNormal(``walk_prior``) per sqrt(year).
-
-    ``excess``: each unit's stage-one covariance is scaled, per quantity kind, by a
-    fitted ``kappa = 1 + HalfNormal(excess_prior)`` where the channels move together and
-    by another where they differ (``T Sigma T``, :mod:`bayescal.fleet.model`): when the
-    channel model does not describe a camera exactly, a unit's own intervals are too
-    narrow, and the scatter of the units about the hierarchy says by how much and in which
-    direction (the fleet's intervals widen; ``sqrt(kappa)`` is reported, and a widening of
-    a unit's own interval of a channel by over 3x fails the fit).  One factor for both
-    directions over-widened the gains: on one fleet of the independent simulator the
-    channels' differences needed 1.4-3.1x, their common part 0.4-1.5x (that part carries the
-    sphere's lamp-level errors, shared by a campaign's units, so one fleet sees it 3 times;
-    over 12 fleets a unit's gain errors are 1.16x their claimed sd).
-    ``excess_together_prior`` replaces ``excess_prior`` where the channels move together in
-    a kind that has a campaign jitter (the log gain and offset with ``drift`` and
-    ``jitter``): there the excess and the jitter each add one variance per unit to the same
-    value, and the data cannot tell them apart (on 5-camera fleets of the independent
-    simulator that factor's posterior was its prior, ``sqrt(kappa)`` 1.44 [1.03, 2.20], and
-    it widened the fleet's gain and offset intervals 1.4x for nothing). The jitter is the
-    physical reading (the unit's state in that campaign, carried into predictions), so the
-    excess there is held near 1; where the data can tell (the channels apart, the
-    nonlinearity) ``excess_prior`` stays.
-
-    ``shared_error``: the fraction of a unit's stage-one error variance that repeats in
-    every campaign of its camera (the same channel model's systematic misfit of the same
-    camera): a camera-level error term carries it, so three campaigns do not shrink a
-    camera's interval by sqrt(3) when their errors are not independent (0: independent).
-    On the independent fleet simulator, 0 gave 95 % intervals of the offsets that covered
-    0.83-0.93.
-
-    ``campaign_sd``: a common effect on every log gain measured in one campaign (Normal,
-    this sd) beside the sphere's: a fleet that does not age along the straight line (it
-    settles), or a bench that differs between campaigns beyond the sphere's scale. Without
-    it the line ties the sphere's per-campaign errors together and biased them (95 %
-    intervals of the absolute gain covered 0.83-0.86 on the independent simulator). It is
-    not extrapolated: the drift ahead is the cameras' trends, walk and jitter.
-
-    ``chains``, ``warmup``, ``draws``, ``target_accept``: NUTS on the scales; while their
-    bulk or tail ESS is below ``[inference] min_ess`` (or their R-hat above ``max_rhat``)
-    every chain continues for another
-    ``draws`` draws, ``extend`` times at most (the trend and walk spreads of the log gain
-    trade off along a ridge that mixes slowly on some seeds).  Warmup adapts the step size only
-    (the mass matrix is the Laplace approximation's, :mod:`bayescal.fleet.sampling`; the walk
-    and jitter are sampled as their total and ratio): 150 iterations and 500 draws per chain
-    gave a smallest bulk or tail ESS of 434-750 on a 20-camera, 12-level fleet (seeds 5-16; one
-    continued to 1000 draws) and no divergent transition in 16 seeds.  Target 0.9: at 0.85 a
-    fit took 7 % fewer gradients but 2 of 9 continued, 3 % more on average; at 0.8 4 of 10
-    continued.  A divergence is run again at ``retry_target_accept``; one left after the retry
-    fails the fit.
-    """
-
-    pooling: Literal["partial", "none", "complete"] = "partial"
-    drift: bool = True
-    walk: bool = True
-    sphere: Literal["per_campaign", "shared"] = "per_campaign"
-    spread_prior: float = 1.0
-    rate_prior: float = 0.5
-    walk_prior: float = 0.3
-    excess: bool = True
-    excess_prior: float = 2.0
-    excess_together_prior: float = 0.1
-    jitter: bool = True
-    jitter_prior: float = 0.3
-    shared_error: float = 0.5
-    campaign_sd: float = 0.02
-    chains: int = 4
-    draws: int = 500
-    warmup: int = 150
-    target_accept: float = 0.9
-    extend: int = 2
-
-
-@dataclass(frozen=True)
 class ModelSpec:
     """A full calibration model: sensor facts plus the components to assemble.
 
@@ -216,6 +124,9 @@ class ModelSpec:
     effects : tuple of (str, section)
         The sections of the optional effects (:data:`bayescal.model.components.EFFECTS`), one per
         registered effect, by section name (``[responsivity]`` in TOML); :meth:`effect` reads one.
+    sections : tuple of (str, section)
+        The sections that packages above the model own (:data:`SECTIONS`: ``[fleet]``), as given;
+        :meth:`section` reads one (its defaults where not given), ``spec.fleet`` the fleet's.
     """
 
     name: str
@@ -230,8 +141,8 @@ class ModelSpec:
     saturation: SaturationSpec = field(default_factory=SaturationSpec)
     settings: SettingsSpec = field(default_factory=SettingsSpec)
     inference: InferenceSpec = field(default_factory=InferenceSpec)
-    fleet: FleetSpec = field(default_factory=FleetSpec)
     effects: tuple[tuple[str, Any], ...] = ()
+    sections: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         given = dict(self.effects)
@@ -245,6 +156,16 @@ class ModelSpec:
     def effect(self, section: str) -> Any:
         """The spec section of the optional effect named ``section``."""
         return dict(self.effects)[section]
+
+    def section(self, name: str) -> Any:
+        """The section ``name`` of :data:`SECTIONS` (its defaults where the spec does not give it)."""
+        given = dict(self.sections)
+        return given[name] if name in given else section_class(name)()
+
+    @property
+    def fleet(self) -> Any:
+        """The ``[fleet]`` section (:class:`bayescal.fleet.spec.FleetSpec`)."""
+        return self.section("fleet")
 
     @property
     def full_scale(self) -> float:
@@ -262,14 +183,17 @@ class ModelSpec:
             for e in EFFECTS
             if e.section in data
         )
+        sections = tuple(
+            (name, build(section_class(name), data.pop(name), source, name + ".")) for name in SECTIONS if name in data
+        )
         spec = build(cls, data, source)
-        return dataclasses.replace(spec, effects=effects) if effects else spec
+        return dataclasses.replace(spec, effects=effects, sections=sections) if effects or sections else spec
 
     def to_dict(self) -> dict[str, Any]:
         """Nested dict in the TOML layout."""
-        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "effects"}
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("effects", "sections")}
         out = {k: dataclasses.asdict(v) if _instance(v) else v for k, v in out.items()}
-        return out | {name: dataclasses.asdict(section) for name, section in self.effects}
+        return out | {name: dataclasses.asdict(section) for name, section in self.effects + self.sections}
 
     def to_toml(self) -> str:
         """Serialise as TOML (round-trips through :func:`load_spec`)."""
@@ -280,23 +204,41 @@ class ModelSpec:
 
         ``spec.replace(response={"order": 2}, sphere={"per_level_rel": 0})``
         """
-        changes, effects = {}, dict(self.effects)
+        changes, effects, owned = {}, dict(self.effects), dict(self.sections)
         for key, value in sections.items():
-            current = effects[key] if key in effects else getattr(self, key)
+            if key in effects:
+                current = effects[key]
+            elif key in SECTIONS:
+                current = self.section(key)
+            else:
+                current = getattr(self, key)
             if isinstance(value, dict) and _instance(current):
                 value = dataclasses.replace(current, **value)
             if key in effects:
                 effects[key] = value
+            elif key in SECTIONS:
+                owned[key] = value
             else:
                 changes[key] = value
-        return dataclasses.replace(self, **changes, effects=tuple(effects.items()))
+        return dataclasses.replace(self, **changes, effects=tuple(effects.items()), sections=tuple(owned.items()))
 
     def structure_key(self) -> str:
         """Hash of everything that changes the model's structure (not sampler settings)."""
         d = self.to_dict()
-        for key in ("name", "description", "inference", "fleet"):
-            d.pop(key)
+        for key in ("name", "description", "inference", *SECTIONS):
+            d.pop(key, None)
         return hashlib.sha1(dumps(d).encode()).hexdigest()[:16]
+
+
+#: sections of a spec that packages above the model own: name -> "module:class" (imported on first use, as
+#: the model kinds are: :mod:`bayescal.model.kinds`)
+SECTIONS: dict[str, str] = {"fleet": "bayescal.fleet.spec:FleetSpec"}
+
+
+def section_class(name: str) -> type:
+    """The dataclass of the registered section ``name`` (:data:`SECTIONS`)."""
+    module, cls = SECTIONS[name].split(":")
+    return getattr(importlib.import_module(module), cls)
 
 
 def _renamed(data: dict[str, Any]) -> dict[str, Any]:
@@ -396,25 +338,6 @@ def _check_spec(spec: ModelSpec) -> None:
         (spec.inference.min_ess > 0, "inference.min_ess must be > 0"),
         (0 < spec.inference.target_accept < 1, "inference.target_accept must be in (0, 1)"),
         (0 <= spec.inference.retry_target_accept < 1, "inference.retry_target_accept must be in [0, 1)"),
-        (
-            min(
-                spec.fleet.spread_prior,
-                spec.fleet.rate_prior,
-                spec.fleet.walk_prior,
-                spec.fleet.excess_prior,
-                spec.fleet.excess_together_prior,
-                spec.fleet.jitter_prior,
-            )
-            > 0,
-            "fleet.spread_prior, rate_prior, walk_prior, excess_prior, excess_together_prior and jitter_prior"
-            " must be > 0",
-        ),
-        (spec.fleet.chains >= 1 and spec.fleet.draws >= 10, "fleet needs chains >= 1 and draws >= 10"),
-        (spec.fleet.warmup >= 10, f"fleet.warmup = {spec.fleet.warmup}; expected >= 10"),
-        (0 < spec.fleet.target_accept < 1, "fleet.target_accept must be in (0, 1)"),
-        (spec.fleet.extend >= 0, f"fleet.extend = {spec.fleet.extend}; expected >= 0"),
-        (0 <= spec.fleet.shared_error < 1, "fleet.shared_error must be in [0, 1)"),
-        (spec.fleet.campaign_sd >= 0, "fleet.campaign_sd must be >= 0"),
     ]
     for ok, message in checks:
         if not ok:

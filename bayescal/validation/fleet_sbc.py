@@ -23,7 +23,8 @@ import pandas as pd
 from bayescal.fleet.excess import excess_of, scale_directions
 from bayescal.fleet.model import FleetData, Plan, block_scales, design_of, with_units
 from bayescal.fleet.sampling import sample_fleet, scale_priors
-from bayescal.model.spec import FleetSpec, InferenceSpec
+from bayescal.fleet.spec import FleetSpec
+from bayescal.model.spec import InferenceSpec
 from bayescal.validation.sbc import RankStatistics, rank_statistics
 
 __all__ = ["FleetSBC", "prior_fleet", "run_fleet_sbc"]

@@ -26,8 +26,9 @@ from bayescal.fleet.model import (
     integrated_value,
     log_marginal,
 )
+from bayescal.fleet.spec import FleetSpec
 from bayescal.fleet.units import fleet_from_frame
-from bayescal.model.spec import FleetSpec, InferenceSpec
+from bayescal.model.spec import InferenceSpec
 from bayescal.validation.fleet import SMALL_FLEET, FleetDesign, simulate_fleet
 from tests.conftest import MODELS
 
@@ -748,3 +749,24 @@ def test_partial_pooling_wins_on_a_fleet_that_has_a_spread(small_fleet):
     for other in ("none", "complete"):
         assert -table.loc[other, "elpd_diff"] > 2 * table.loc[other, "dse"], table
     assert np.isclose(table["weight"].sum(), 1.0)
+
+
+def test_the_fleet_section_belongs_to_the_fleet_package():
+    """``[fleet]`` is read into the fleet's own spec class, round-trips, takes ``replace``, names a bad key,
+    defaults where a spec has none, and loading a camera's spec does not import the fleet."""
+    import subprocess
+    import sys
+
+    spec = _spec()
+    assert type(spec.fleet) is FleetSpec and spec.fleet.draws == 500
+    again = type(spec).from_dict(__import__("tomllib").loads(spec.to_toml()))
+    assert again.fleet == spec.fleet
+    assert spec.replace(fleet={"draws": 40}).fleet.draws == 40
+    assert load_spec(MODELS / "seed000_bayer.toml").fleet == FleetSpec()  # the defaults
+    bad = spec.to_dict()
+    bad["fleet"] = bad["fleet"] | {"warmup": 3}
+    with pytest.raises(SpecError, match="fleet.warmup = 3"):
+        type(spec).from_dict(bad)
+    code = "import sys, bayescal; bayescal.load_spec('seed000'); print('bayescal.fleet' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

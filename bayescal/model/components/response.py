@@ -50,7 +50,7 @@ class ResponseSpec:
     or differ; the Laplace backend refuses them (the Gaussian at the joint mode has no honest
     width for a pooling scale from three channels).  Pooling is off by default: with three
     colour channels and a full radiance sweep it buys little (README, "Pooling channels within
-    one camera").  Cameras of a fleet are pooled by :class:`~bayescal.model.spec.FleetSpec`
+    one camera").  Cameras of a fleet are pooled by :class:`~bayescal.fleet.spec.FleetSpec`
     (``bayescal fleet``).
 
     Priors, in the model's scaled units (docs/architecture.md, section 5): the gain ``G``
