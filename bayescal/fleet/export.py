@@ -18,7 +18,7 @@ import numpy as np
 
 from bayescal.errors import PosteriorError
 from bayescal.fleet.posterior import FleetFit, safe_name
-from bayescal.model.basis import response_monomials
+from bayescal.model.physical import reported_from_pooled
 
 __all__ = ["fleet_calibration", "write_calibration"]
 
@@ -63,17 +63,9 @@ def write_calibration(
     values = fleet.at(camera, date, seed=seed)  # (S, K, C)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA11B]))
     values = values[rng.integers(0, values.shape[0], chains * draws)]
-    kinds = list(fleet.kinds)
-    gain = np.exp(values[:, kinds.index("log_gain")])  # (S, C)
-    offset = values[:, kinds.index("offset")]
-    eta = (
-        np.stack([values[:, kinds.index(k)] for k in kinds if k.startswith("eta")], axis=-1) if len(kinds) > 2 else None
-    )
-    spec = fleet.spec
-    order = spec.response.order
-    full = spec.full_scale
-    coef = response_monomials(gain / full, eta, order) * full  # DN per stimulus^k: S(L) with v = gain L / full scale
-    coef[..., 0] = offset
+    reported = reported_from_pooled({k: values[:, i] for i, k in enumerate(fleet.kinds)}, fleet.spec)
+    coef, gain, eta = reported["A_rel"], reported["gain_rel"], reported.get("nonlinearity")
+    offset = coef[..., 0]
     shape = (chains, draws)
     old_a0 = np.asarray(post["A_abs"])[..., 0].reshape(chains * draws, -1)
     shift = (offset - old_a0).reshape(shape + (-1,))

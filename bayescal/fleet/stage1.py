@@ -25,6 +25,7 @@ from bayescal.errors import SpecError
 from bayescal.fitting.batch import FitBatch, fit_many
 from bayescal.fitting.result import Fit
 from bayescal.fleet.units import FleetTable
+from bayescal.model.physical import POOLED, pooled_quantities
 from bayescal.model.spec import ModelSpec
 
 if TYPE_CHECKING:
@@ -32,8 +33,8 @@ if TYPE_CHECKING:
 
 __all__ = ["UnitFits", "fit_units", "QUANTITIES"]
 
-#: fleet quantity kinds, in the order of the per-unit vector (each has one entry per channel)
-QUANTITIES = ("log_gain", "offset")
+#: fleet quantity kinds before the nonlinearity's, in the order of the per-unit vector (one entry per channel)
+QUANTITIES = POOLED
 #: eigenvalue floor of a unit's likelihood precision, relative to its largest (prior division noise)
 PRECISION_FLOOR = 1e-9
 
@@ -128,7 +129,7 @@ def fit_units(
     means, covs, rows = [], [], []
     for unit, (batch, i) in zip(units, fitted, strict=True):
         phys = batch.physical(i)
-        vec = _quantities(phys, n_eta, unit.label)  # (S, K, C)
+        vec = _quantities(phys, kinds, unit.label)  # (S, K, C)
         mean, cov = _likelihood(vec, spec.response.nonlinearity_prior_sd, n_eta)
         means.append(mean)
         covs.append(cov)
@@ -156,25 +157,17 @@ def fit_units(
     )
 
 
-def _quantities(phys: dict[str, np.ndarray], n_eta: int, label: str) -> np.ndarray:
-    """Draws of the fleet quantities, ``(S, K, C)``."""
-    gain = np.asarray(phys["gain_rel"], dtype=float)
-    gain = gain.reshape((-1,) + gain.shape[2:])
-    offset = np.asarray(phys["A_rel"], dtype=float)[..., 0]
-    offset = offset.reshape((-1,) + offset.shape[2:])
-    if not np.all(np.isfinite(offset)):
+def _quantities(phys: dict[str, np.ndarray], kinds: tuple[str, ...], label: str) -> np.ndarray:
+    """Draws of the fleet quantities (:func:`bayescal.model.physical.pooled_quantities`), ``(S, K, C)``."""
+    pooled = {k: v.reshape((-1,) + v.shape[2:]) for k, v in pooled_quantities(phys).items()}
+    if not np.all(np.isfinite(pooled["offset"])):
         raise SpecError(
             f"{label}: no dark rows at the reference gain, so the offset at the reference setting is not "
             "measured; a fleet needs every unit's dark frames at the spec's [reference] gain"
         )
-    if np.any(gain <= 0):
+    if not np.all(np.isfinite(pooled["log_gain"])):
         raise SpecError(f"{label}: a non-positive gain draw; the unit's fit does not describe a camera")
-    parts = [np.log(gain), offset]
-    if n_eta:
-        eta = np.asarray(phys["nonlinearity"], dtype=float)
-        eta = eta.reshape((-1,) + eta.shape[2:])  # (S, C, k)
-        parts += [eta[..., k] for k in range(n_eta)]
-    return np.stack(parts, axis=1)
+    return np.stack([pooled[k] for k in kinds], axis=1)
 
 
 def _likelihood(vec: np.ndarray, eta_prior_sd: float, n_eta: int) -> tuple[np.ndarray, np.ndarray]:

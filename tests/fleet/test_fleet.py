@@ -770,3 +770,19 @@ def test_the_fleet_section_belongs_to_the_fleet_package():
     code = "import sys, bayescal; bayescal.load_spec('seed000'); print('bayescal.fleet' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_the_pooled_quantities_come_from_a_units_reported_draws_and_back(fitted):
+    """What stage one pools (``log A1``, ``A0``, ``eta``) is read from a unit's reported draws by the model
+    layer, and the export's inverse gives those draws back."""
+    from bayescal.model.physical import POOLED, pooled_quantities, reported_from_pooled
+
+    _, fit, _ = fitted
+    phys = fit.fits.physical(0)
+    pooled = pooled_quantities(phys)
+    assert tuple(pooled)[:2] == POOLED and tuple(pooled)[2:] == tuple(fit.fits.kinds)[2:]
+    back = reported_from_pooled(pooled, fit.spec)
+    order = fit.spec.response.order
+    assert np.allclose(back["A_rel"], phys["A_rel"][..., : order + 1], rtol=1e-10, atol=1e-9)
+    assert np.allclose(back["gain_rel"], phys["gain_rel"], rtol=1e-12)
+    assert np.allclose(back["nonlinearity"], phys["nonlinearity"])
