@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from bayescal.errors import PosteriorError
-from bayescal.fleet.posterior import FleetFit, safe_name
+from bayescal.fleet.posterior import FleetFit
+from bayescal.fleet.store import safe_name
 from bayescal.model.physical import reported_from_pooled
 
 __all__ = ["fleet_calibration", "write_calibration"]

@@ -31,13 +31,12 @@ from bayescal.fleet.excess import channel_inflation, excess_of
 from bayescal.fleet.model import FleetData, Plan, fleet_data
 from bayescal.fleet.sampling import FleetDraws, loo_of, sample_fleet
 from bayescal.fleet.stage1 import UnitFits, fit_units
+from bayescal.fleet.store import load_fleet, save_fleet
 from bayescal.fleet.units import DAYS_PER_YEAR, FleetTable
 from bayescal.model.spec import ModelSpec
 
 __all__ = ["FleetFit", "fit_fleet", "compare_pooling"]
 
-#: the fleet posterior file inside a fleet directory
-FLEET_FILE = "fleet.nc"
 #: the widening of a unit's own interval of a channel by the excess (:func:`~.excess.channel_inflation`)
 #: above which the units' scatter fails the fit (their own intervals 3x too narrow)
 EXCESS_LIMIT = 3.0
@@ -469,17 +468,13 @@ class FleetFit:
     # ----------------------------------------------------------- storage
     def save(self, out_dir: str | os.PathLike) -> Path:
         """Write the fleet directory, replacing ``out_dir`` whole (:func:`bayescal.fleet.store.save_fleet`)."""
-        from bayescal.fleet.store import save_fleet
-
         return save_fleet(self, out_dir)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> FleetFit:
         """From a fleet directory written by :meth:`save`, or its ``fleet.nc``
         (:func:`bayescal.fleet.store.load_fleet`)."""
-        from bayescal.fleet.store import load_fleet
-
-        return load_fleet(path)
+        return cls(**load_fleet(path))
 
 
 @computes
@@ -567,8 +562,3 @@ def compare_pooling(fleet: FleetTable, spec: ModelSpec, fits: UnitFits | None = 
     table = ranked.rename(columns={"elpd": "elpd_loo"})[["elpd_loo", "se", "elpd_diff", "dse", "weight"]]
     table = table.join(pd.DataFrame(rows).T)
     return table[["elpd_loo", "se", "elpd_diff", "dse", "weight", "p_loo", "n_high_k", "divergences"]]
-
-
-def safe_name(name: str) -> str:
-    """A camera's name as a directory name (letters, digits, ``-_.``; anything else ``_``)."""
-    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)

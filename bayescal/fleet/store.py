@@ -10,17 +10,28 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from bayescal.errors import PosteriorError
 from bayescal.fleet.model import FleetData, Plan
-from bayescal.fleet.posterior import FLEET_FILE, FleetFit, safe_name
 from bayescal.fleet.sampling import FleetDraws
 from bayescal.model.spec import ModelSpec
 
-__all__ = ["save_fleet", "load_fleet", "fleet_dataset"]
+if TYPE_CHECKING:
+    from bayescal.fleet.posterior import FleetFit
+
+__all__ = ["FLEET_FILE", "save_fleet", "load_fleet", "fleet_dataset", "safe_name"]
+
+#: the fleet posterior file inside a fleet directory
+FLEET_FILE = "fleet.nc"
+
+
+def safe_name(name: str) -> str:
+    """A camera's name as a directory name (letters, digits, ``-_.``; anything else ``_``)."""
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)
 
 
 def save_fleet(fit: FleetFit, out_dir: str | os.PathLike) -> Path:
@@ -80,8 +91,9 @@ def fleet_dataset(fit: FleetFit):
     return ds
 
 
-def load_fleet(path: str | os.PathLike) -> FleetFit:
-    """From a fleet directory written by :meth:`save` (or its ``fleet.nc``)."""
+def load_fleet(path: str | os.PathLike) -> dict[str, Any]:
+    """The fields of a :class:`~bayescal.fleet.posterior.FleetFit` read from a fleet directory written by
+    :func:`save_fleet` (or its ``fleet.nc``); :meth:`FleetFit.load` builds the fit from them."""
     import io
     import tomllib
 
@@ -139,7 +151,7 @@ def load_fleet(path: str | os.PathLike) -> FleetFit:
         yy=empty,
         n_rows=empty,
     )
-    return FleetFit(
+    return dict(
         spec=spec,
         kinds=tuple(json.loads(a["kinds"])),
         channels=tuple(json.loads(a["channels"])),
