@@ -19,17 +19,15 @@ scale at the table's longest exposure.  Specs written before it was an effect of
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from bayescal.errors import SpecError
 from bayescal.model.components.base import Effect
+from bayescal.model.components.channels import ChannelDraws, per_row
 
 __all__ = ["Glow", "GlowSpec", "GlowTerm"]
-
-#: its per-row input in ``ModelData.extra``: full scale x (t / t_max)^2 x g / g_ref (DN per unit coefficient)
-INPUT = "glow.scale_dn"
 
 
 @dataclass(frozen=True)
@@ -61,9 +59,7 @@ class Glow(Effect):
 
     spec: GlowSpec
     n_channels: int
-    # what the per-row input is computed from; not part of the compiled structure
-    full_scale: float = field(default=1.0, compare=False)
-    reference_gain: float = field(default=1.0, compare=False)
+    dn_scale: float = 1.0  # full scale (DN): the model's rows are in its units, the effect's offset in DN
 
     @staticmethod
     def forward(coefficient, exposure_s, g_rel):
@@ -74,7 +70,7 @@ class Glow(Effect):
     def build(cls, section: GlowSpec, spec, frame) -> Glow | None:
         if not section.enabled:
             return None
-        return cls(section, frame["channel"].nunique(), spec.full_scale, spec.reference.gain)
+        return cls(section, frame["channel"].nunique(), spec.full_scale)
 
     @classmethod
     def candidates(cls, section: GlowSpec, spec, frame) -> dict[str, dict]:
@@ -84,17 +80,15 @@ class Glow(Effect):
             return {}
         return {"amplifier glow (a dark signal in t^2, per channel)": {"glow": {"enabled": True}}}
 
-    def inputs(self, frame) -> dict[str, np.ndarray]:
-        t = frame["exposure_s"].to_numpy(dtype=float)
-        g_rel = frame["gain"].to_numpy(dtype=float) / self.reference_gain
-        return {INPUT: self.full_scale * self.forward(1.0, t / t.max(), g_rel)}
-
     def sample(self, data):
+        """The DN of every row: the coefficient is sampled in full scale per longest exposure squared
+        (``data.t`` is the exposure over the table's longest, as the dark slope's)."""
         import numpyro
         import numpyro.distributions as dist
 
         prior = dist.Normal(0.0, self.spec.prior_sd).expand([self.n_channels]).to_event(1)
-        return numpyro.sample("glow", prior)[data.channel] * data.extra[INPUT]
+        coefficient = numpyro.sample("glow", prior)[data.channel] * self.dn_scale
+        return self.forward(coefficient, data.t, data.g_rel)
 
     def describe(self) -> str:
         return "offset: amplifier glow (t^2, per channel)"
@@ -106,36 +100,23 @@ class Glow(Effect):
     def term(cls, section: GlowSpec, spec, draws, frame) -> GlowTerm | None:
         if "dark_glow_dn_s2" not in draws:
             return None
-        coef = np.asarray(draws["dark_glow_dn_s2"], dtype=float)
-        channels = tuple(dict.fromkeys(str(c) for c in frame["channel"]))
-        return GlowTerm(coef.reshape((-1,) + coef.shape[2:]), channels, spec.reference.gain)
+        return GlowTerm.from_draws(draws["dark_glow_dn_s2"], frame, spec.reference.gain)
 
     @classmethod
     def true_offset(cls, params, rows, spec) -> np.ndarray:
         """``params``: ``dn_s2``, one value or a table channel -> value (DN/s^2 at the reference gain)."""
         if set(params) - {"dn_s2"}:
             raise SpecError(f"[truth.effects.glow] keys {sorted(set(params) - {'dn_s2'})}; expected ['dn_s2']")
-        coefficient = params.get("dn_s2", 0.0)
-        if isinstance(coefficient, dict):
-            coefficient = rows["channel"].map(lambda c: float(coefficient.get(c, 0.0))).to_numpy()
         g_rel = rows["gain"].to_numpy(dtype=float) / spec.reference.gain
-        return cls.forward(np.asarray(coefficient, dtype=float), rows["exposure_s"].to_numpy(dtype=float), g_rel)
+        return cls.forward(per_row(params.get("dn_s2", 0.0), rows), rows["exposure_s"].to_numpy(dtype=float), g_rel)
 
 
 @dataclass(frozen=True)
-class GlowTerm:
+class GlowTerm(ChannelDraws):
     """The coefficients' posterior ``(S, C)`` (DN/s^2 at the reference gain) as predictions use them."""
 
-    coefficient: np.ndarray
-    channels: tuple[str, ...]
     reference_gain: float
 
     def offset(self, channel, setting, n_draws: int) -> np.ndarray:
         """``c t^2 g / g_ref`` DN per draw at the setting."""
-        if channel is None:
-            raise SpecError("amplifier glow differs by channel: a prediction needs its channel")
-        c = self.coefficient[:, self.channels.index(str(channel))]
-        return Glow.forward(c, setting.exposure_s, setting.gain / self.reference_gain)
-
-    def flags(self, setting) -> list[str]:
-        return []  # the calibrated range flags exposures outside the measured ones
+        return Glow.forward(self.of(channel, "amplifier glow"), setting.exposure_s, setting.gain / self.reference_gain)
