@@ -67,16 +67,11 @@ class Parts:
         """Every component, in report order."""
         return (self.response, self.dark, self.sphere, self.noise, self.saturation, self.settings, *self.effects)
 
-    def of_role(self, role: str) -> tuple[Component, ...]:
-        """The components in one place of the equation (:data:`~bayescal.model.equation.ROLES`), in
-        report order."""
-        return tuple(c for c in self.components if c.role == role)
-
     @property
     def factors(self) -> tuple[StimulusFactor, ...]:
         """The factors on the effective stimulus besides the settings': the sphere's level errors, the
         factor effects."""
-        return tuple(c for c in self.of_role("factor") if isinstance(c, StimulusFactor))
+        return (self.sphere, *(e for e in self.effects if e.role == "factor"))
 
     def sample_offsets(self, data: ModelData):
         """Each offset term's level in the model's units (DN over full scale), sampled in turn: the dark

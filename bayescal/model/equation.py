@@ -38,9 +38,8 @@ ROLES = ("settings", "factor", "response", "offset", "noise", "observation")
 
 
 class Reading(NamedTuple):
-    """The expected reading and what it is built from (any array namespace, broadcast shapes)."""
+    """The expected reading and its signal (any array namespace, broadcast shapes)."""
 
-    x: Any  # effective stimulus: u times every factor
     signal: Any  # the response's signal S(x), in the offsets' units
     mean: Any  # the expected reading before noise and clipping: the offsets plus S
 
@@ -66,4 +65,4 @@ def reading(u: Any, factors: Iterable[Any], response: Callable[[Any], Any], offs
     offset: Any = 0.0
     for term in offsets:
         offset = offset + term
-    return Reading(x, signal, offset + signal)
+    return Reading(signal, offset + signal)

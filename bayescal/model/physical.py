@@ -18,7 +18,7 @@ import numpy as np
 
 from bayescal.model.assemble import CalibrationModel
 from bayescal.model.basis import response_monomials
-from bayescal.model.components import Context, Dark, effect_terms, reported_dims, site_dims
+from bayescal.model.components import Context, offset_terms, reported_dims, site_dims
 from bayescal.model.components.sphere import fold_common_scale
 from bayescal.model.setting import Setting
 
@@ -89,7 +89,9 @@ def _offsets_at_reference(model: CalibrationModel, out: dict[str, np.ndarray]) -
     lead = out["A_rel"].shape[:2]
     if not (model.parts.dark.proportional or spec.reference.gain in layout.gain_values):
         return np.full(lead + (len(layout.channels),), np.nan)
-    dark = Dark.term(spec, out, layout.channels, layout.gain_values)
-    terms = (dark, *effect_terms(spec, out, model.table.frame, "offset"))
+    dark, effects = offset_terms(spec, out, layout.channels, layout.gain_values, model.table.frame)
+    terms = (dark, *effects)
     ref, n = Setting.at_reference(spec.reference), int(np.prod(lead))
-    return np.stack([sum(t.offset(c, ref, n) for t in terms).reshape(lead) for c in layout.channels], axis=-1)
+    return np.stack(
+        [sum((t.offset(c, ref, n) for t in terms), np.zeros(n)).reshape(lead) for c in layout.channels], axis=-1
+    )

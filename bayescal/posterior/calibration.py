@@ -32,7 +32,15 @@ import numpy as np
 
 from bayescal.errors import PosteriorError, SpecError, TableError
 from bayescal.model import kinds
-from bayescal.model.components import Dark, FactorTerm, Noise, OffsetTerm, Response, Saturation, effect_terms
+from bayescal.model.components import (
+    FactorTerm,
+    Noise,
+    OffsetTerm,
+    Response,
+    Saturation,
+    effect_terms,
+    offset_terms,
+)
 from bayescal.model.components.dark import DarkTerm
 from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.components.settings import SettingFactorDraws, SettingFactors
@@ -183,7 +191,7 @@ class Calibration:
 
         coef = flat(draws["A_abs"])[..., 1:]
         coef_rel = flat(draws["A_rel"])[..., 1:]
-        dark = Dark.term(spec, draws, channels, tuple(gains))
+        dark, offsets = offset_terms(spec, draws, channels, tuple(gains), frame)
         excess = flat(draws["excess_dn"]) if "excess_dn" in draws else np.zeros(coef.shape[0])
         read, kconv = spec.noise.read_noise_dn, spec.noise.conversion_gain
         if spec.noise.kind == "measured" and "dn_var" in frame:
@@ -205,7 +213,7 @@ class Calibration:
             calibrated=_calibrated_range(frame, spec),
             source=source,
             factors=_factor_terms(spec, draws, frame, flat),
-            offsets=_offset_terms(spec, draws, frame),
+            offsets=offsets,
             charge_nonlinearity=spec.response.nonlinearity_domain == "charge",
             rolloff=(
                 np.stack([flat(draws["rolloff_knee_dn"]), flat(draws["rolloff_power"])], axis=-1)
@@ -380,7 +388,7 @@ class Calibration:
         self, channel: str, stimulus, setting: Setting, relative: bool = False, per_draw: bool = False
     ) -> Reading:
         """The measurement equation per draw at ``setting`` (:func:`~bayescal.model.equation.reading`):
-        effective stimulus, signal and expected DN before clipping, each ``(S,) + shape(stimulus)``;
+        the signal and the expected DN before clipping, each ``(S,) + shape(stimulus)``;
         with ``per_draw`` the stimulus already has the draws on its first axis (e.g. a sphere level's
         reading times that draw's level error)."""
         stimulus = np.asarray(stimulus, dtype=float)
@@ -462,11 +470,6 @@ def _calibrated_range(frame, spec: ModelSpec) -> CalibratedRange:
 def _factor_terms(spec: ModelSpec, draws: dict, frame, flat) -> tuple[FactorTerm, ...]:
     """The factors on the effective stimulus that predictions apply: the settings', then each factor effect's."""
     return SettingFactors.terms(draws, frame, spec.reference, flat) + effect_terms(spec, draws, frame, "factor")
-
-
-def _offset_terms(spec: ModelSpec, draws: dict, frame) -> tuple[OffsetTerm, ...]:
-    """The offset effects that predictions add to the dark level."""
-    return effect_terms(spec, draws, frame, "offset")
 
 
 def _photon_transfer(frame, spec, dark: DarkTerm) -> tuple[float, float]:

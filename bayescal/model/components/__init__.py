@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from bayescal.model.components.base import Component, Context, Effect, FactorTerm, OffsetTerm, StimulusFactor
-from bayescal.model.components.dark import Dark, DarkSpec
+from bayescal.model.components.dark import Dark, DarkSpec, DarkTerm
 from bayescal.model.components.glow import Glow
 from bayescal.model.components.noise import Noise, NoiseSpec
 from bayescal.model.components.offset_temperature import OffsetTemperature
@@ -50,6 +50,7 @@ __all__ = [
     "StimulusFactor",
     "effect",
     "effect_terms",
+    "offset_terms",
     "reported_dims",
     "site_dims",
 ]
@@ -71,6 +72,14 @@ def effect_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any, role: s
     reported draws ``(chain, draw, ...)`` and the table they were fitted to (:meth:`Effect.term`)."""
     terms = (cls.term(spec.effect(cls.section), spec, draws, frame) for cls in EFFECTS if cls.role == role)
     return tuple(t for t in terms if t is not None)
+
+
+def offset_terms(
+    spec: Any, draws: Mapping[str, np.ndarray], channels: tuple[str, ...], gains: tuple[float, ...], frame: Any
+) -> tuple[DarkTerm, tuple[OffsetTerm, ...]]:
+    """The terms a calibration adds to every reading, from the reported draws ``(chain, draw, ...)``: the
+    dark level (``gains``: the gain of each fitted dark column) and the offset effects."""
+    return Dark.term(spec, draws, channels, gains), effect_terms(spec, draws, frame, "offset")
 
 
 def site_dims() -> Mapping[str, tuple[str, ...]]:
