@@ -87,3 +87,14 @@ from hypothesis import settings as _hypothesis_settings  # noqa: E402
 
 _hypothesis_settings.register_profile("bayescal", derandomize=False, database=None)
 _hypothesis_settings.load_profile("bayescal")
+
+
+def quiet_fit(table, spec, backend="laplace", seed=0):
+    """``bc.fit`` with its failed-fit warning silenced: for tests that read the verdict themselves."""
+    import warnings
+
+    import bayescal as bc
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", bc.FitFailedWarning)
+        return bc.fit(table, spec, backend, seed=seed)

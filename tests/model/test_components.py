@@ -13,6 +13,8 @@ from scipy import integrate, stats
 import bayescal as bc
 from bayescal.model.basis import response_monomials, shifted_legendre_monomials
 from bayescal.model.components import EFFECTS, Dark, Noise, Response, Saturation, SettingFactors, Sphere
+from bayescal.model.components.glow import Glow
+from bayescal.model.components.offset_temperature import OffsetTemperature
 from bayescal.model.components.responsivity import ResponsivityTemperature
 
 finite = st.floats(-3.0, 3.0, allow_nan=False)
@@ -145,23 +147,35 @@ def test_every_component_declares_the_dims_of_what_it_samples_and_reports(seed00
 def test_the_model_and_the_posterior_evaluate_one_equation(seed000):
     """Every row's expected reading as the numpyro model computes it (scaled, jax) equals what
     :class:`~bayescal.Calibration` predicts for that row's channel, stimulus and setting (physical, numpy),
-    draw by draw: the settings' factors, the temperature effect, dark and response included."""
+    draw by draw: the settings' factors, a factor effect, dark, two offset effects and the response
+    included."""
     import dataclasses
 
     from bayescal.inference.program import program_for
 
     spec, design = seed000
-    spec = spec.replace(saturation={"censor": False}, sphere={"per_level_rel": 0.0})
-    blocks = tuple(dataclasses.replace(b, temperature_c=(12.0, 20.0, 31.0)) for b in design.illuminated)
-    dark = tuple(dataclasses.replace(b, temperature_c=(20.0,)) for b in design.dark)
-    truth = dataclasses.replace(design.truth, effects={"responsivity": {"coefficient_per_c": 0.004}})
+    spec = spec.replace(
+        saturation={"censor": False},
+        sphere={"per_level_rel": 0.0},
+        offset_temperature={"enabled": True},
+        glow={"enabled": True},
+    )
+    temperatures = (12.0, 20.0, 31.0)
+    blocks = tuple(dataclasses.replace(b, temperature_c=temperatures) for b in design.illuminated)
+    dark = tuple(dataclasses.replace(b, temperature_c=temperatures) for b in design.dark)
+    effects = {
+        "responsivity": {"coefficient_per_c": 0.004},
+        "offset_temperature": {"dn_per_c": {"R": 0.5, "G": -0.3}},
+        "glow": {"dn_s2": {"R": 3e4, "B": 1e4}},
+    }
+    truth = dataclasses.replace(design.truth, effects=effects)
     design = dataclasses.replace(design, illuminated=blocks, dark=dark, truth=truth)
     table = bc.simulate(spec, design, seed=5).table
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", bc.FitFailedWarning)
         fit = bc.fit(table, spec, "laplace", seed=0)
     model = fit.model
-    assert [type(e) for e in model.parts.effects] == [ResponsivityTemperature]
+    assert [type(e) for e in model.parts.effects] == [ResponsivityTemperature, OffsetTemperature, Glow]
     post = fit.posterior["posterior"]
     n = 30
     with bc.numerics():
@@ -171,7 +185,7 @@ def test_the_model_and_the_posterior_evaluate_one_equation(seed000):
         row_mean = np.asarray(program.constrain(z, model.data)["row_mean"]) * model.layout.dn_scale
     cal = bc.Calibration.from_fit(fit)
     frame = model.table.frame
-    for i in np.flatnonzero(frame["stimulus"].to_numpy() > 0)[::7]:
+    for i in range(0, len(frame), 7):  # lit rows and dark ones
         r = frame.iloc[i]
         setting = bc.Setting(r.exposure_s, r.gain, r.tdi_stages, temperature_c=r.temperature_c)
         predicted = cal.expected_dn(r.channel, r.stimulus, setting, relative=True)[:n]
@@ -200,3 +214,12 @@ def test_rolloff_compresses_monotonically_and_is_undone():
         hess = jax.hessian(f)(jnp.array([1.2, 3.0]))
         grad_s = jax.jacfwd(jax.grad(lambda x: Response.compress(x, 1.2, 3.0, jnp)))(0.0)
     assert np.isfinite(np.asarray(hess)).all() and np.isfinite(float(grad_s))
+
+
+def test_every_component_fills_a_place_of_the_equation():
+    """The core components fill every place of the skeleton, one each; the effects take the two open ones."""
+    from bayescal.model.components import CORE
+    from bayescal.model.equation import ROLES
+
+    assert sorted(c.role for c in CORE) == sorted(ROLES)
+    assert {e.role for e in EFFECTS} == {"factor", "offset"}

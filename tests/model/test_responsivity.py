@@ -3,7 +3,6 @@ illuminated rows span temperatures, covering its truth, predicting readings at t
 measured, left out when the table cannot inform it."""
 
 import dataclasses
-import warnings
 
 import numpy as np
 import pytest
@@ -11,6 +10,7 @@ from scipy import stats
 
 import bayescal as bc
 from bayescal.model.components.responsivity import ResponsivityTemperature
+from tests.conftest import quiet_fit
 
 TRUE = {"R": 0.004, "G": 0.002, "B": -0.001}  # per degC: red rises fastest with temperature
 TEMPERATURES = (10.0, 20.0, 30.0)
@@ -22,12 +22,6 @@ def thermal(spec, design, coefficients=TRUE, temperatures=TEMPERATURES):
     dark = tuple(dataclasses.replace(b, temperature_c=(20.0,)) for b in design.dark)
     truth = dataclasses.replace(design.truth, effects={"responsivity": {"coefficient_per_c": dict(coefficients)}})
     return spec, dataclasses.replace(design, illuminated=blocks, dark=dark, truth=truth)
-
-
-def quiet_fit(table, spec, backend="laplace", seed=0):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", bc.FitFailedWarning)
-        return bc.fit(table, spec, backend, seed=seed)
 
 
 @pytest.fixture(scope="module")
