@@ -258,11 +258,11 @@ def sample_fleet(
     if sampled:
         z, divergences, gradients = _run_chains(plan, spec, args, seed, inference)
         retry = inference.retry_target_accept if inference is not None else 0.0
-        run = spec
+        run, attempt = spec, 0
         while (target := retry_target(run.target_accept, retry, divergences / z[..., 0].size)) is not None:
             first = divergences if first is None else first
-            run, retried_at = replace(run, target_accept=target), target  # new chains with smaller steps
-            z, divergences, more = _run_chains(plan, run, args, seed + (2 if target > retry else 1), inference)
+            run, retried_at, attempt = replace(run, target_accept=target), target, attempt + 1  # smaller steps
+            z, divergences, more = _run_chains(plan, run, args, seed + attempt, inference)  # new chains
             gradients += more
         n = z.shape[1]
         hyper = _unpack(plan, z.reshape(chains * n, -1), args["walk_interval"])

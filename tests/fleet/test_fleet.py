@@ -434,6 +434,31 @@ def test_chains_with_a_divergence_are_run_again_at_the_retry_target(small_fleet,
     assert targets == [spec.target_accept] and off.diagnostics["divergences"] == 3
 
 
+def test_a_few_divergences_left_after_the_retry_get_the_last_run(small_fleet, monkeypatch):
+    """The one retry policy (inference.chains.retry_target), as a unit's fit has it: 1 divergence in 100
+    draws after the retry (under 2 %) gets one last run at 0.99, with new chains (its own seed)."""
+    import bayescal.fleet.sampling as sampling
+    from bayescal.inference.chains import LAST_RETRY_ACCEPT
+
+    fleet = fleet_from_frame(_frame(small_fleet), source="small")
+    data, plan = fleet_data(_Fits(fleet, 2, np.random.default_rng(1)), FleetSpec(walk=False), 0.03)
+    spec = FleetSpec(walk=False, chains=2, warmup=20, draws=50, extend=0)
+    dim = sum(plan.sampled().values())
+    left = {spec.target_accept: 3, 0.95: 1, LAST_RETRY_ACCEPT: 0}
+    runs = []
+
+    def chains(plan_, spec_, args, seed, inference):
+        runs.append((spec_.target_accept, seed))
+        draws = np.log(0.5) + 0.1 * np.random.default_rng(seed).standard_normal((2, 50, dim))
+        return draws, left[spec_.target_accept], 1000
+
+    monkeypatch.setattr(sampling, "_run_chains", chains)
+    out = sampling.sample_fleet(data, plan, spec, seed=1, inference=InferenceSpec(retry_target_accept=0.95))
+    assert runs == [(spec.target_accept, 1), (0.95, 2), (LAST_RETRY_ACCEPT, 3)]
+    assert out.diagnostics["first_divergences"] == 3 and out.diagnostics["retried_at"] == LAST_RETRY_ACCEPT
+    assert out.diagnostics["divergences"] == 0 and out.diagnostics["gradients"] == 3000
+
+
 # ---------------------------------------------------------------- a fleet with known truth
 def test_leave_one_unit_out_is_reliable_on_the_small_fleet(fitted):
     """With every latent integrated out, PSIS reweights only the scales: few units have Pareto
