@@ -12,7 +12,7 @@ import signal
 import sys
 from typing import NoReturn
 
-from bayescal.cli.parser import build
+from bayescal.cli.parser import build, output_files
 
 __all__ = ["main"]
 
@@ -23,10 +23,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     from bayescal._config import numerics
     from bayescal.errors import BayescalError
+    from bayescal.io.ledger import check_output_file, overwrite_allowed
 
     previous = _catch_interrupts()
     try:
-        with numerics():
+        with numerics(), overwrite_allowed(getattr(args, "force", False)):
+            check_output_file(*output_files(args))  # before any work: a file of the user's is never replaced
             return args.func(args)
     except BayescalError as exc:
         print(f"bayescal: error: {exc}", file=sys.stderr)

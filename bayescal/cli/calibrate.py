@@ -11,6 +11,13 @@ def cmd_fit(args) -> int:
     from bayescal.io.outputs import check_output_dir
     from bayescal.model import kinds
 
+    if args.report and args.backend == "lsq":
+        from bayescal.errors import SpecError
+
+        raise SpecError(
+            "--report draws the posterior's credible bands, and the lsq backend makes no posterior: fit with "
+            "--backend laplace or nuts (the report shows least squares beside it)"
+        )
     check_output_dir(args.out, "fit")
     spec = load_spec(args.model)
     table = kinds.load_table(spec, args.data)  # the table of the spec's kind (a camera's, a film's)

@@ -59,18 +59,15 @@ def _of_source(message: str, scratch: Path, source: Path) -> str:
 
 def _maps(args, stage, manifest) -> int:
     from bayescal.cli.progress import progress_bar
+    from bayescal.io.cluster import connect
     from bayescal.maps.build import build_maps
     from bayescal.maps.metadata import channel_attrs
     from bayescal.maps.model import DEFECT_CODES
     from bayescal.maps.store import make_maps, read_maps, write_maps
 
-    client = None
-    if args.scheduler:
-        from distributed import Client
-
-        client = Client(args.scheduler)
-        stage(f"using the dask scheduler at {args.scheduler}")
-    try:
+    with connect(args.scheduler) if args.scheduler else contextlib.nullcontext() as client:
+        if client is not None:
+            stage(f"using the dask scheduler at {args.scheduler}")
         h, w = manifest.shape
         stage(
             f"{len(manifest.stacks)} stacks of {h} x {w} pixels ({manifest.bytes / 1e9:.2f} GB); fitting the population"
@@ -100,9 +97,6 @@ def _maps(args, stage, manifest) -> int:
                 maps = read_maps(args.out)
             else:
                 maps = make_maps(manifest, args.out, **kw, progress=advance, stage=population)
-    finally:
-        if client is not None:
-            client.close()
     if args.report:
         from bayescal.maps.report import maps_report
 

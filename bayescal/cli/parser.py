@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
+from pathlib import Path
 
 from bayescal.cli.calibrate import cmd_demo, cmd_fit, cmd_report, cmd_sbc, cmd_select, cmd_simulate
 from bayescal.cli.characterize import cmd_characterize
@@ -14,6 +16,8 @@ from bayescal.cli.products import cmd_invert, cmd_plan, cmd_predict, cmd_scene
 from bayescal.errors import SpecError
 from bayescal.inference import registry as backends
 from bayescal.io import checks  # light: numpy and pandas are imported on use
+from bayescal.io.cluster import scheduler_address
+from bayescal.io.limits import check_value
 
 SEED_HELP = "seed of every random number (default 0): the same seed gives the same result"
 
@@ -64,10 +68,10 @@ def _predict(sub) -> None:
     pr = sub.add_parser("predict", help="posterior predictive DN at a (possibly unmeasured) setting")
     pr.add_argument("posterior", help="fit directory or its posterior.nc")
     setting_args(pr, required=True)
-    pr.add_argument("--radiance", "--stimulus", dest="stimulus", type=floats, help="stimulus values (comma list)")
+    pr.add_argument("--radiance", "--stimulus", dest="stimulus", type=stimuli, help="stimulus values (comma list)")
     pr.add_argument("--channel", action="append", help="channel(s) (default all)")
     pr.add_argument("--n-avg", type=positive, default=1.0, help="pixels x frames averaged per reading (default 1)")
-    pr.add_argument("--out", help="also write the table as CSV")
+    file_output(pr, "--out", help="also write the table as CSV")
     pr.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     pr.set_defaults(func=cmd_predict)
 
@@ -84,13 +88,14 @@ def _invert(sub) -> None:
     iv.add_argument("--dn", type=floats, help="DN values instead of an image (comma list)")
     setting_args(iv, required=False)
     image_args(iv, channel_help="channel of a single-channel image or of --dn values")
-    iv.add_argument("--out", help="output directory (image) or CSV (--dn)")
+    file_output(iv, "--out", help="output directory (image) or CSV (--dn)", when=lambda a: a.dn is not None)
     iv.add_argument(
         "--maps",
         help="per-pixel maps directory (from `bayescal maps`): correct every pixel before inverting",
     )
     iv.add_argument(
         "--scheduler",
+        type=address,
         help="dask.distributed scheduler address (tcp://host:8786): invert the frames on its workers, "
         "which must see the same files",
     )
@@ -125,7 +130,9 @@ def _maps(sub) -> None:
         help="rows per block and store chunk (default: ~2^20 pixels)",
     )
     mp.add_argument(
-        "--scheduler", help="address of a dask.distributed scheduler (e.g. tcp://host:8786); default: this machine"
+        "--scheduler",
+        type=address,
+        help="address of a dask.distributed scheduler (e.g. tcp://host:8786); default: this machine",
     )
     mp.add_argument("--report", action="store_true", help="also write OUT/maps_report.html (+ .md)")
     mp.add_argument("--quiet", action="store_true", help="no progress bar or stage messages")
@@ -139,10 +146,20 @@ def _plan(sub) -> None:
     pl.add_argument("--channel", required=True, help="channel the reading (or the scene) is of")
     pl.add_argument("--dn", type=non_negative, help="reading at the current setting")
     pl.add_argument("--current", type=setting_values, help="current setting: EXPOSURE_S[,GAIN[,TDI[,TEMPERATURE_C]]]")
-    pl.add_argument("--radiance", "--stimulus", dest="stimulus", type=positive, help="known scene stimulus instead")
-    pl.add_argument("--exposures", type=positives, required=True, help="allowed exposures, s (comma list)")
-    pl.add_argument("--gains", type=positives, default=[1.0], help="allowed gains (comma list)")
-    pl.add_argument("--tdi-stages", type=positives, default=[1.0], help="allowed TDI stages (comma list)")
+    pl.add_argument(
+        "--radiance",
+        "--stimulus",
+        dest="stimulus",
+        type=limited("stimulus", positive=True),
+        help="known scene stimulus instead",
+    )
+    pl.add_argument(
+        "--exposures", type=limited_list("exposure_s"), required=True, help="allowed exposures, s (comma list)"
+    )
+    pl.add_argument("--gains", type=limited_list("gain"), default=[1.0], help="allowed gains (comma list)")
+    pl.add_argument(
+        "--tdi-stages", type=limited_list("tdi_stages"), default=[1.0], help="allowed TDI stages (comma list)"
+    )
     pl.add_argument("--window", type=window, help="target DN window LOW,HIGH (default 1080,1920 scaled to bits)")
     pl.add_argument("--n-avg", type=positive, default=1.0, help="pixels x frames averaged per reading (default 1)")
     pl.add_argument("--top", type=positive_int, default=5, help="rows to print")
@@ -154,7 +171,12 @@ def _report(sub) -> None:
     """The arguments of ``bayescal report``."""
     rp = sub.add_parser("report", help="HTML report (figures embedded) + report.json + report.md of a fit")
     rp.add_argument("fit_dir", help="directory written by `bayescal fit`")
-    rp.add_argument("--out", help="HTML path (default FIT_DIR/report.html); .json and .md go beside it")
+    file_output(
+        rp,
+        "--out",
+        help="HTML path (default FIT_DIR/report.html); .json and .md go beside it",
+        paths=lambda v: [v, str(Path(v).with_suffix(".json")), str(Path(v).with_suffix(".md"))],
+    )
     rp.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     rp.set_defaults(func=cmd_report)
 
@@ -198,7 +220,7 @@ def _scene(sub) -> None:
     image_args(sc, channel_help="channel of a single-channel image")
     sc.add_argument("--full", help="the reference candidate (default: the highest response order)")
     sc.add_argument("--tol", type=positive, default=0.1, help="allowed deviation in posterior sds (default 0.1)")
-    sc.add_argument("--out", help="write the comparison as JSON here")
+    file_output(sc, "--out", help="write the comparison as JSON here")
     sc.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     sc.set_defaults(func=cmd_scene)
 
@@ -210,7 +232,13 @@ def _sbc(sub) -> None:
     sb.add_argument("--model", required=True, help="model spec (TOML); its priors generate the datasets")
     sb.add_argument("--sims", type=positive_int, default=200, help="simulated datasets (default 200)")
     sb.add_argument("--backend", default="nuts", choices=backends.names(), help="backend of the refits (default nuts)")
-    sb.add_argument("--out", required=True, help="output stem: writes STEM.csv, STEM.md, STEM.png")
+    file_output(
+        sb,
+        "--out",
+        required=True,
+        help="output stem: writes STEM.csv, STEM.md, STEM.png",
+        paths=lambda v: [v + ".csv", v + ".md", v + ".png"],
+    )
     sb.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     sb.set_defaults(func=cmd_sbc)
 
@@ -220,7 +248,7 @@ def _simulate(sub) -> None:
     s = sub.add_parser("simulate", help="simulate a measurement table from a design with a [truth] table")
     s.add_argument("--design", required=True, help="design TOML (names its spec, holds [truth])")
     s.add_argument("--model", help="model spec (default: the design's)")
-    s.add_argument("--out", required=True, help="CSV to write")
+    file_output(s, "--out", required=True, help="CSV to write")
     s.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     s.set_defaults(func=cmd_simulate)
 
@@ -269,8 +297,8 @@ def _fleet_simulate(sub) -> None:
     """The arguments of ``bayescal fleet-simulate``."""
     fs = sub.add_parser("fleet-simulate", help="simulate a fleet's campaigns (independent simulator) from a design")
     fs.add_argument("design", help="fleet design TOML, e.g. models/fleet_seed000_design.toml")
-    fs.add_argument("--out", required=True, help="measurement table CSV to write")
-    fs.add_argument("--truth", help="also write the true coefficients per unit to this CSV")
+    file_output(fs, "--out", required=True, help="measurement table CSV to write")
+    file_output(fs, "--truth", help="also write the true coefficients per unit to this CSV")
     fs.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     fs.set_defaults(func=cmd_fleet_simulate)
 
@@ -342,6 +370,7 @@ positive_int = _checked(lambda t: checks.count(t, "value"))
 seed = _checked(lambda t: checks.count(t, "value", minimum=0))
 probability = _checked(lambda t: checks.probability(t, "value"))
 iso_date = _checked(lambda t: checks.date(t, "value").date().isoformat())
+address = _checked(lambda t: scheduler_address(t, "value"))
 
 
 def positives(text: str) -> list[float]:
@@ -364,7 +393,36 @@ def setting_values(text: str) -> list[float]:
         raise argparse.ArgumentTypeError(
             f"expected EXPOSURE_S[,GAIN[,TDI[,TEMPERATURE_C]]] (1 to 4 numbers), got {len(values)}: '{text}'"
         )
+    for value, name in zip(values, ("exposure_s", "gain", "tdi_stages", "temperature_c"), strict=False):
+        limited(name)(str(value))
     return values
+
+
+def limited(name: str, positive: bool = False) -> Callable[[str], float]:
+    """An argument type: a number within the physical limit ``name`` (:data:`bayescal.io.limits.LIMITS`),
+    above 0 as well with ``positive``."""
+
+    def convert(text: str) -> float:
+        value = _checked(lambda t: check_value(t, name, "value"))(text)
+        if positive and not value > 0:
+            raise argparse.ArgumentTypeError(f"'{text}'; expected a number above 0")
+        return value
+
+    return convert
+
+
+def limited_list(name: str) -> Callable[[str], list[float]]:
+    """An argument type: a comma list of numbers, each within the physical limit ``name``."""
+
+    def convert(text: str) -> list[float]:
+        return [limited(name)(v.strip()) for v in text.split(",") if v.strip()] or floats(text)
+
+    return convert
+
+
+def stimuli(text: str) -> list[float]:
+    """Stimulus values (radiance or irradiance, comma list): each within its physical limit (>= 0)."""
+    return limited_list("stimulus")(text)
 
 
 def orders(text: str) -> list[int]:
@@ -388,10 +446,15 @@ def floats(text: str) -> list[float]:
 
 
 def setting_args(p: argparse.ArgumentParser, required: bool) -> None:
-    p.add_argument("--exposure-s", type=positive, required=required, help="exposure time, s")
-    p.add_argument("--gain", type=positive, default=None, help="gain factor (default the reference gain)")
-    p.add_argument("--tdi-stages", type=positive, default=None, help="TDI stages (default the reference)")
-    p.add_argument("--temperature-c", type=finite, default=None, help="sensor temperature, degC (default reference)")
+    p.add_argument("--exposure-s", type=limited("exposure_s"), required=required, help="exposure time, s")
+    p.add_argument("--gain", type=limited("gain"), default=None, help="gain factor (default the reference gain)")
+    p.add_argument("--tdi-stages", type=limited("tdi_stages"), default=None, help="TDI stages (default the reference)")
+    p.add_argument(
+        "--temperature-c",
+        type=limited("temperature_c"),
+        default=None,
+        help="sensor temperature, degC (default reference)",
+    )
 
 
 def image_args(p, channel_help: str) -> None:
@@ -400,3 +463,43 @@ def image_args(p, channel_help: str) -> None:
     p.add_argument("--channel", help=channel_help)
     p.add_argument("--channels", help="comma list naming the planes of an (H, W, C) image")
     p.add_argument("--n-avg", type=positive, default=1.0, help="pixels x frames averaged per value (default 1)")
+
+
+#: what ``--force`` allows, in the help of every verb that writes single files
+FORCE_HELP = "replace output files that bayescal did not write (by default it refuses and names them)"
+
+
+def file_output(
+    p: argparse.ArgumentParser,
+    flag: str,
+    *,
+    help: str,
+    required: bool = False,
+    paths: Callable[[str], list[str]] = lambda value: [value],
+    when: Callable[[argparse.Namespace], bool] = lambda args: True,
+) -> None:
+    """A file-valued output option: every file it names (``paths`` of its value, e.g. a report's ``.json``
+    and ``.md`` beside its HTML) is checked before any work when ``when(args)`` holds (see
+    :func:`output_files`); the verb gets ``--force`` to replace files bayescal did not write."""
+    p.add_argument(flag, required=required, help=help)
+    dest = flag.lstrip("-").replace("-", "_")
+    p.set_defaults(file_outputs=(*(p.get_default("file_outputs") or ()), (dest, paths, when)))
+    if p.get_default("force") is None:
+        p.add_argument("--force", action="store_true", default=False, help=FORCE_HELP)
+
+
+def output_files(args: argparse.Namespace) -> list[str]:
+    """Every single file the parsed command will write (its file-valued outputs, expanded); two options
+    naming one file are refused."""
+    files: list[str] = []
+    for dest, paths, when in getattr(args, "file_outputs", ()):
+        value = getattr(args, dest)
+        if value is not None and when(args):
+            files += paths(value)
+    seen: dict[str, str] = {}
+    for f in files:
+        key = str(Path(f).absolute())
+        if key in seen:
+            raise SpecError(f"two outputs of this command name the same file, {f}; give each its own name")
+        seen[key] = f
+    return files

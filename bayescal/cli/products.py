@@ -143,6 +143,7 @@ def _invert_with_maps(args, cal, setting, path, image) -> int:
     import numpy as np
 
     from bayescal.errors import SpecError
+    from bayescal.io.files import write_netcdf
     from bayescal.io.outputs import check_output_dir, staged_directory
     from bayescal.maps.apply import apply_maps
     from bayescal.maps.store import read_maps
@@ -167,7 +168,7 @@ def _invert_with_maps(args, cal, setting, path, image) -> int:
     )
     ds.attrs.update(image=str(path), calibration=cal.source, seed=args.seed)
     with staged_directory(args.out, kind="radiance") as stage:
-        ds.to_netcdf(stage("radiance.nc"), engine="h5netcdf")
+        write_netcdf(ds, stage("radiance.nc"))
     finite = np.isfinite(ds["median"].to_numpy())
     print(
         f"corrected and inverted {image.size} pixels of {path} with the maps of {args.maps}: "
@@ -207,7 +208,10 @@ def cmd_plan(args) -> int:
         f"best: exposure {b.exposure_s:g} s, gain {b.gain:g}, TDI {b.tdi_stages:g} -> "
         f"P({lo:g} <= DN <= {hi:g}) = {plan.probability:.3f}"
     )
-    print(plan.table.head(args.top).drop(columns=["why"]).to_string(index=False, float_format="%.4g"))
+    shown = plan.table.head(args.top)
+    print(shown.drop(columns=["why"]).to_string(index=False, float_format="%.4g"))
+    for why in sorted(set("; ".join(shown.loc[shown.extrapolated, "why"]).split("; ")) - {""}):
+        print(f"EXTRAPOLATION: {why}", file=sys.stderr)
     return 0
 
 

@@ -31,7 +31,7 @@ from bayescal.inference import registry as backends
 from bayescal.inference.diagnostics import Diagnostics
 from bayescal.inference.laplace import laplace
 from bayescal.inference.program import program_of
-from bayescal.io.files import write_json_atomic
+from bayescal.io.files import write_json_atomic, write_netcdf
 from bayescal.io.outputs import staged_directory
 
 __all__ = ["BandFit", "FilmFit", "fit_film", "fit_film_table", "REPORTED"]
@@ -167,7 +167,7 @@ class FilmFit:
         with staged_directory(out_dir, kind="fit") as stage:
             if measurements:
                 self.table.write_csv(stage("measurements.csv"))
-            self.posterior.to_netcdf(stage("posterior.nc"), engine="h5netcdf")
+            write_netcdf(self.posterior, stage("posterior.nc"))
             self.summary.to_csv(stage("summary.csv"), index_label="parameter", float_format="%.8g")
             write_json_atomic(stage("summary.json"), self.to_dict())
         return out_dir

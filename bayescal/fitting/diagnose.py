@@ -37,7 +37,16 @@ from bayescal.io.table import MeasurementTable
 from bayescal.model.components import EFFECTS
 from bayescal.model.spec import ModelSpec
 
-__all__ = ["Diagnosis", "candidates", "decide_domain", "diagnose", "fit_diagnosed", "other_domain", "MAX_STEPS"]
+__all__ = [
+    "Diagnosis",
+    "candidates",
+    "decide_domain",
+    "diagnose",
+    "fit_diagnosed",
+    "laplace_proxy",
+    "other_domain",
+    "MAX_STEPS",
+]
 
 #: at most this many switches are adopted, one at a time
 MAX_STEPS = 3
@@ -79,9 +88,10 @@ def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
             }
     if r.order < 4:
         out[f"response order {r.order + 1} (a roll-off near full scale)"] = {"response": {"order": r.order + 1}}
-    drifting = d.drift is True or d.drift == "order" or (d.drift == "auto" and "time_s" in frame)
+    timed = "time_s" in frame and frame["time_s"].nunique() > 1
+    drifting = d.drift is True or d.drift == "order" or (d.drift == "auto" and timed)
     if not drifting:
-        if "time_s" in frame:
+        if timed:
             out["a dark level that drifted over time_s"] = {"dark": {"drift": True}}
         else:
             out["a dark level that drifted over the run (the rows' order)"] = {"dark": {"drift": "order"}}
@@ -125,7 +135,7 @@ def decide_domain(table: MeasurementTable, spec: ModelSpec, seed: int = 0) -> tu
     if change is None:
         return spec, None, None
     other = spec.replace(**change)
-    fits = [_quiet_fit(table, s, "laplace", seed) for s in (spec, other)]
+    fits = [_quiet_fit(table, laplace_proxy(s), "laplace", seed) for s in (spec, other)]
     diff, se = _difference(*(_loo(f) for f in fits))
     take = diff > EVIDENCE_SE * se
     chosen = other if take else spec
@@ -136,7 +146,7 @@ def decide_domain(table: MeasurementTable, spec: ModelSpec, seed: int = 0) -> tu
         "dse": se,
         "chosen": chosen.response.nonlinearity_domain,
     }
-    return chosen, info, fits[1 if take else 0]
+    return chosen, info, fits[1 if take else 0] if laplace_proxy(spec) is spec else None
 
 
 @dataclass(frozen=True)
@@ -206,6 +216,18 @@ def _changes_text(changes: dict) -> str:
     return "; ".join(f"[{sec}] " + ", ".join(f"{k} = {v!r}" for k, v in keys.items()) for sec, keys in changes.items())
 
 
+def laplace_proxy(spec: ModelSpec) -> ModelSpec:
+    """The spec whose Laplace fits stand for ``spec`` in the domain decision and the diagnosis: ``spec``
+    itself, or with its channel pooling off where it pools (the Laplace backend cannot integrate the
+    pooling scales; pooling changes the priors of the coefficients, not the equation the candidates
+    differ in).  The user's backend then fits the pooled spec the search chose."""
+    r, d = spec.response, spec.dark
+    if not (r.pooled or d.pooled or r.gain_prior == "pooled"):
+        return spec
+    gain_prior = "lognormal" if r.gain_prior == "pooled" else r.gain_prior
+    return spec.replace(response={"pooled": False, "gain_prior": gain_prior}, dark={"pooled": False})
+
+
 def _quiet_fit(table, spec, backend, seed):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FitFailedWarning)
@@ -235,7 +257,9 @@ def diagnose(table: MeasurementTable, spec: ModelSpec, seed: int = 0, base: Fit 
     ``base``: a Laplace fit of ``spec`` already made (refitted otherwise).
     """
     current_spec = spec
-    current = base if base is not None and base.backend == "laplace" else _quiet_fit(table, spec, "laplace", seed)
+    proxy = laplace_proxy(spec)
+    reuse = base is not None and base.backend == "laplace" and proxy is spec
+    current = base if reuse else _quiet_fit(table, proxy, "laplace", seed)
     current_loo = _loo(current)
     adopted: list[str] = []
     steps = []
@@ -243,7 +267,9 @@ def diagnose(table: MeasurementTable, spec: ModelSpec, seed: int = 0, base: Fit 
         rows, fits = [], {}
         for name, changes in candidates(current_spec, table).items():
             trial = current_spec.replace(**changes)
-            result = _quiet_fit(table, trial.replace(inference={"holdout_check": False}), "laplace", seed)
+            result = _quiet_fit(
+                table, laplace_proxy(trial).replace(inference={"holdout_check": False}), "laplace", seed
+            )
             if _level_trend(result) >= LAMP_TREND:  # the "lamp errors" follow the signal: a shape, not a lamp
                 continue
             loo = _loo(result)
@@ -261,7 +287,7 @@ def diagnose(table: MeasurementTable, spec: ModelSpec, seed: int = 0, base: Fit 
         adopted.append(str(best.candidate))
     if not adopted:
         return Diagnosis((), current_spec, bool(current.ok), steps)
-    final = _quiet_fit(table, current_spec, "laplace", seed)  # the adopted model, with every check
+    final = _quiet_fit(table, laplace_proxy(current_spec), "laplace", seed)  # the adopted model, every check
     return Diagnosis(tuple(adopted), current_spec, bool(final.ok), steps, final)
 
 
@@ -285,7 +311,10 @@ def range_check(table: MeasurementTable, spec: ModelSpec, result: Fit, seed: int
         return [], info
     try:
         sub = _quiet_fit(
-            MeasurementTable.from_frame(table.to_frame()[low].reset_index(drop=True)), spec, "laplace", seed
+            MeasurementTable.from_frame(table.to_frame()[low].reset_index(drop=True)),
+            laplace_proxy(spec),
+            "laplace",
+            seed,
         )
     except Exception as exc:  # too few levels below the cut for the response's order: nothing to compare
         info["skipped"] = str(exc)

@@ -26,7 +26,7 @@ from bayescal.fitting.holdout import holdout_checks
 from bayescal.fitting.misfit import MisfitThresholds, misfit_checks
 from bayescal.inference import registry as backends
 from bayescal.inference.diagnostics import Diagnostics
-from bayescal.io.files import write_json_atomic
+from bayescal.io.files import write_json_atomic, write_netcdf
 from bayescal.io.outputs import staged_directory
 from bayescal.io.table import MeasurementTable
 from bayescal.model.assemble import CalibrationModel
@@ -219,7 +219,7 @@ class Fit:
             if measurements:
                 self.model.table.write_csv(stage("measurements.csv"))
             if self.posterior is not None:
-                self.posterior.to_netcdf(stage("posterior.nc"), engine="h5netcdf")
+                write_netcdf(self.posterior, stage("posterior.nc"))
                 self.summary.to_csv(stage("summary.csv"), index_label="parameter", float_format="%.8g")
             else:
                 self.lsq.to_csv(stage("summary.csv"), index=False, float_format="%.8g")

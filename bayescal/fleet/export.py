@@ -47,7 +47,7 @@ def write_calibration(
     """
     import xarray as xr
 
-    from bayescal.io.files import write_json_atomic
+    from bayescal.io.files import write_json_atomic, write_netcdf
     from bayescal.io.outputs import check_output_dir, staged_directory
 
     fleet_dir = Path(fleet_dir)
@@ -87,7 +87,7 @@ def write_calibration(
     when = "its last campaign" if date is None else str(date)
     tree.attrs["fleet_source"] = f"{fleet_dir} camera={label} date={when} template={source} seed={seed}"
     with staged_directory(out_dir, kind="fit") as stage:
-        tree.to_netcdf(stage("posterior.nc"), engine="h5netcdf")
+        write_netcdf(tree, stage("posterior.nc"))
         write_json_atomic(
             stage("summary.json"),
             {

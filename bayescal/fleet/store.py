@@ -38,11 +38,11 @@ def save_fleet(fit: FleetFit, out_dir: str | os.PathLike) -> Path:
     """Write the fleet directory (replacing ``out_dir`` whole): ``fleet.nc`` (draws and the
     stage-one summaries), ``summary.csv``, ``hyperparameters.csv``, ``units.csv``,
     ``summary.json``, and each camera's latest stage-one fit under ``cameras/``."""
-    from bayescal.io.files import write_json_atomic
+    from bayescal.io.files import write_json_atomic, write_netcdf
     from bayescal.io.outputs import staged_directory
 
     with staged_directory(out_dir, kind="fleet") as stage:
-        fleet_dataset(fit).to_netcdf(stage(FLEET_FILE), engine="h5netcdf")
+        write_netcdf(fleet_dataset(fit), stage(FLEET_FILE))
         fit.summary().to_csv(stage("summary.csv"), index=False, float_format="%.8g")
         fit.hyperparameters().to_csv(stage("hyperparameters.csv"), index=False, float_format="%.8g")
         fit.units.to_csv(stage("units.csv"), index=False, float_format="%.8g")

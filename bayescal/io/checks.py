@@ -17,7 +17,7 @@ if TYPE_CHECKING:
     import numpy as np
     import pandas as pd
 
-__all__ = ["number", "count", "probability", "date", "image", "within_bits"]
+__all__ = ["number", "count", "probability", "date", "image", "within_bits", "require_spread"]
 
 
 def number(value, what: str, *, positive: bool = False, minimum: float | None = None) -> float:
@@ -110,4 +110,20 @@ def within_bits(img: np.ndarray, full_scale: float, source: str) -> None:
         raise TableError(
             f"{source}: {n} pixel(s) exceed the calibration's full scale of {full_scale:g} DN (largest {top:g}); "
             "is this image from another sensor or bit depth?"
+        )
+
+
+def require_spread(values: np.ndarray, option: str, column: str) -> None:
+    """A term switched on (``option = true``) over a covariate needs the table to record two or more of its
+    values: with one, nothing in the data informs the term and it would be fitted from its prior without a
+    word.  Raises :class:`~bayescal.errors.TableError` naming the option, the column and the one value."""
+    import numpy as np
+
+    distinct = np.unique(np.asarray(values, dtype=float)[np.isfinite(values)])
+    if distinct.size < 2:
+        held = f"one value ({distinct[0]:g})" if distinct.size else "no value"
+        raise TableError(
+            f"{option} = true, but the table's '{column}' holds {held}: nothing in the data can inform it; "
+            f"record two or more values of '{column}', or switch {option} off",
+            column=column,
         )

@@ -400,6 +400,16 @@ def steps_of(rows: list[dict], stacks: dict, bits: int, source: str) -> Steps:
     for kind in ("bright", "dark"):
         if not (df["kind"] == kind).any():
             raise TableError(f"{source}: no {kind} image pairs; EMVA 1288 needs both bright and dark steps")
+    unlit = np.flatnonzero((df["kind"] == "bright").to_numpy() & ~(df["photons"].to_numpy(dtype=float) > 0))
+    if unlit.size:
+        r = df.iloc[unlit[0]]
+        raise TableError(
+            f"{source}: the bright step at {r.texp_s * 1e9:g} ns has {r.photons:g} photons per pixel "
+            f"({unlit.size} bright step(s) so); expected the photons each bright step received (> 0): a step "
+            "without light is a dark step",
+            row=int(unlit[0]) + 1,
+            column="photons_per_pixel",
+        )
     bright = df[df.kind == "bright"].drop(columns="kind").sort_values("texp_s").reset_index(drop=True)
     dark = df[df.kind == "dark"].drop(columns="kind").sort_values("texp_s").reset_index(drop=True)
     stack = {}

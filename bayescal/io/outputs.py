@@ -37,6 +37,8 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from bayescal.io.files import write_errors
+
 __all__ = [
     "MARKER",
     "FORMAT",
@@ -272,6 +274,11 @@ def check_output_dir(out_dir: str | os.PathLike, kind: str) -> Path:
     from bayescal.errors import OutputError
 
     out_dir = Path(out_dir)
+    if out_dir.is_symlink():
+        raise OutputError(
+            f"{out_dir} is a symbolic link (to {os.readlink(out_dir)}); bayescal does not write outputs through "
+            "links, which could replace a folder elsewhere: give the real path"
+        )
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"{out_dir} is a file; expected a folder for the outputs (give another --out)")
     if out_dir.is_dir():
@@ -322,7 +329,8 @@ def staged_directory(out_dir: str | os.PathLike, kind: str) -> Iterator[Stage]:
     stage = Stage(staging, run_id)
     old = None
     try:
-        yield stage
+        with write_errors(out_dir):
+            yield stage
         _checkpoint("staged")
         marker = {
             "format": FORMAT,
@@ -331,7 +339,8 @@ def staged_directory(out_dir: str | os.PathLike, kind: str) -> Iterator[Stage]:
             "bayescal_version": __version__,
             "files": _listing(staging),
         }
-        _write_marker(staging, marker)
+        with write_errors(out_dir):
+            _write_marker(staging, marker)
         os.chmod(staging, 0o777 & ~_umask())
         with interrupts_held():
             check_output_dir(out_dir, kind)  # nothing of the user's arrived while the run worked

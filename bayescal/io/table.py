@@ -16,6 +16,7 @@ import pandas as pd
 
 from bayescal.errors import TableError
 from bayescal.io.files import atomic_path, read_text
+from bayescal.io.limits import limit
 
 __all__ = ["MeasurementTable", "load_table", "read_frame", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
@@ -33,6 +34,21 @@ OPTIONAL_COLUMNS: dict[str, float | None] = {
     "dn_var": None,
     "radiance_u_rel": None,
     "replicate": 0.0,
+}
+#: the limit (:data:`bayescal.io.limits.LIMITS`) each numeric column is checked against
+COLUMN_LIMITS = {
+    "radiance": "stimulus",
+    "irradiance": "stimulus",
+    "exposure_s": "exposure_s",
+    "gain": "gain",
+    "tdi_stages": "tdi_stages",
+    "temperature_c": "temperature_c",
+    "time_s": "time_s",
+    "n_frames": "count",
+    "n_pixels": "count",
+    "dn_mean": "dn",
+    "dn_var": "dn_var",
+    "radiance_u_rel": "relative",
 }
 _POSITIVE = ("exposure_s", "gain", "tdi_stages", "n_frames", "n_pixels")
 _NONNEGATIVE = ("radiance", "irradiance", "radiance_u_rel")
@@ -230,15 +246,42 @@ def _check_ranges(out: pd.DataFrame, stimulus: str) -> None:
             row=bad[0] + 1,
             column="dn_mean",
         )
-    if "dn_var" in out:
-        bad = np.flatnonzero(out["dn_var"].to_numpy() <= 0)
-        if bad.size:
-            raise TableError("temporal variance must be > 0 (DN^2)", row=bad[0] + 1, column="dn_var")
+    for col, name in COLUMN_LIMITS.items():
+        key = "stimulus" if col == stimulus else col
+        if key in out and (col == stimulus or col not in STIMULUS_COLUMNS):
+            lim = limit(name)
+            values = out[key].to_numpy()
+            bad = np.flatnonzero(~np.array([lim.holds(v) for v in values]))
+            if bad.size:
+                raise TableError(
+                    f"{values[bad[0]]:g} is out of range; expected {lim.describe()}", row=bad[0] + 1, column=col
+                )
     for col in ("n_frames", "n_pixels", "tdi_stages"):
         v = out[col].to_numpy()
         bad = np.flatnonzero(v != np.round(v))
         if bad.size:
             raise TableError(f"{v[bad[0]]:g} is not a whole number", row=bad[0] + 1, column=col)
+    if "time_s" in out:
+        _check_times(out)
+
+
+def _check_times(out: pd.DataFrame) -> None:
+    """One ``time_s`` value is one moment of the session: the channels of one frame share it, but two
+    settings or two sphere levels cannot have been measured at the same moment."""
+    what = [c for c in ("stimulus", "exposure_s", "gain", "tdi_stages", "temperature_c", "replicate") if c in out]
+    first = out.drop_duplicates("time_s")
+    seen = dict(zip(first["time_s"], first.index, strict=True))
+    for i, row in enumerate(out[["time_s", *what]].itertuples(index=False)):
+        j = seen[row[0]]
+        if j != i and tuple(out.loc[j, what]) != tuple(row[1:]):
+            differs = next(c for c, a, b in zip(what, out.loc[j, what], row[1:], strict=True) if a != b)
+            raise TableError(
+                f"time {row[0]:g} s is also the time of row {j + 1}, which differs in {differs}; one moment of the "
+                "session holds one setting (the channels of one frame share it); expected the time each frame "
+                "was taken",
+                row=i + 1,
+                column="time_s",
+            )
 
 
 def _levels(df: pd.DataFrame, out: pd.DataFrame) -> pd.Series:

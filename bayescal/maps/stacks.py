@@ -134,7 +134,7 @@ def _open_one(path: Path, row: pd.Series, where: str) -> LazyStack:
 
             try:
                 mm = tifffile.memmap(str(path), mode="r")
-            except ValueError as exc:
+            except Exception as exc:  # tifffile's own errors for a truncated, empty or compressed file
                 raise TableError(
                     f"{where}: {path.name} is not an uncompressed contiguous TIFF ({exc}); "
                     "save the stack uncompressed or as .npy"

@@ -20,6 +20,7 @@ import numpy as np
 
 from bayescal._config import numerics
 from bayescal.errors import TableError
+from bayescal.io.files import write_netcdf
 from bayescal.io.outputs import staged_directory
 from bayescal.maps.build import lazy_maps
 from bayescal.maps.kernel import block_maps
@@ -64,7 +65,7 @@ def write_maps(ds, out: str | os.PathLike, *, netcdf: bool = False, progress=Non
         numerics(),
     ):
         if netcdf:
-            ds.to_netcdf(stage("maps.nc"), engine="h5netcdf")
+            write_netcdf(ds, stage("maps.nc"))
         else:
             store = str(stage.root / "maps.zarr")
             _layout(ds, store)

@@ -167,9 +167,9 @@ class CalibrationModel:
 
 def resolve_for_table(spec: ModelSpec, table: MeasurementTable) -> ModelSpec:
     """The spec with its table-dependent options decided: ``dark.drift = "auto"`` is on when the table
-    records when each row was measured (``time_s``)."""
+    records when each row was measured (``time_s``, two or more moments)."""
     if spec.dark.drift == "auto":
-        spec = spec.replace(dark={"drift": "time_s" in table.frame})
+        spec = spec.replace(dark={"drift": "time_s" in table.frame and table.frame["time_s"].nunique() > 1})
     return spec
 
 

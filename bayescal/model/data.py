@@ -16,7 +16,9 @@ from typing import NamedTuple
 import numpy as np
 
 from bayescal.errors import TableError
+from bayescal.io.checks import require_spread
 from bayescal.io.table import MeasurementTable
+from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.spec import ModelSpec
 
 __all__ = ["ModelData", "Layout", "prepare", "effective_stimulus", "check_levels_per_channel"]
@@ -150,7 +152,7 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
         raise TableError(
             "noise.kind = 'measured' needs a 'dn_var' column (per-pixel temporal variance, DN^2)", column="dn_var"
         )
-    var_meas = df["dn_var"].to_numpy() / dn_scale**2 if "dn_var" in df else np.ones(len(df))
+    var_meas = _measured_variance(df, saturated, dn_scale) if "dn_var" in df else np.ones(len(df))
     temp = np.zeros(len(df))
     if spec.dark.temperature:
         temp = (
@@ -209,11 +211,34 @@ def prepare(table: MeasurementTable, spec: ModelSpec) -> tuple[ModelData, Layout
     return data, layout
 
 
+def _measured_variance(df, clipped: np.ndarray, dn_scale: float) -> np.ndarray:
+    """The measured per-pixel temporal variance in scaled units.  A region held at full scale (or at 0)
+    truly measures a variance of 0: its reading is censored, and its variance is taken as the
+    quantisation's, the least a reading can carry.  Anywhere else a variance of 0 is not a measurement."""
+    var = df["dn_var"].to_numpy(dtype=float)
+    at_zero = df["dn_mean"].to_numpy() <= 0
+    bad = np.flatnonzero((var <= 0) & ~clipped & ~at_zero)
+    if bad.size:
+        i = int(bad[0])
+        raise TableError(
+            f"a temporal variance of 0 in a region that is not clipped (dn_mean {df['dn_mean'].iloc[i]:g}, below "
+            f"full scale {dn_scale:g}); only a region held at full scale or at 0 measures no temporal noise: "
+            "expected the per-pixel temporal variance (DN^2, > 0)",
+            row=i + 1,
+            column="dn_var",
+        )
+    return np.where(var > 0, var, QUANTISATION_DN2) / dn_scale**2
+
+
 def _needed(df, column: str, option: str, meaning: str) -> np.ndarray:
-    """The values of a column that a spec option needs; a clear error when the table lacks it."""
+    """The values of a column that a spec option needs; a clear error when the table lacks it, or when
+    it holds one value only (nothing in the table could inform the option: it would be fitted from its
+    prior without a word)."""
     if column not in df:
         raise TableError(f"{option} = true needs a '{column}' column ({meaning})", column=column)
-    return df[column].to_numpy(dtype=float)
+    values = df[column].to_numpy(dtype=float)
+    require_spread(values, option, column)
+    return values
 
 
 def check_levels_per_channel(df, dark: np.ndarray, saturated: np.ndarray, x: np.ndarray, spec: ModelSpec) -> None:

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from bayescal.errors import SpecError
+from bayescal.io.limits import limit
 from bayescal.io.toml import build, dumps, read_toml
 from bayescal.model import kinds
 from bayescal.model.components import EFFECTS
@@ -250,7 +251,13 @@ def _renamed(data: dict[str, Any]) -> dict[str, Any]:
             if isinstance(data.get(section), dict) and name in data[section]:
                 data[section] = dict(data[section])
                 value = data[section].pop(name)
-                data[e.section] = {key: value} | dict(data.get(e.section, {}))
+                given = dict(data.get(e.section, {})) if isinstance(data.get(e.section), dict) else {}
+                if key in given and given[key] != value:
+                    raise SpecError(
+                        f"{old} = {value!r} and {e.section}.{key} = {given[key]!r} contradict each other; "
+                        f"{old} is the older name of {e.section}.{key}: keep one of them"
+                    )
+                data[e.section] = {key: value} | given
     return data
 
 
@@ -274,19 +281,25 @@ def load_spec(path: str | os.PathLike) -> ModelSpec:
 
 
 def _non_finite(obj, prefix: str = "") -> str | None:
-    """The dotted key of the first NaN or infinite number in a spec's sections, or None."""
-    import dataclasses
+    """The dotted key of the first NaN or infinite number in a spec's sections (its effects' and the
+    sections owned above the model included), or None."""
     import math
 
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
         key = f"{prefix}{f.name}"
-        if dataclasses.is_dataclass(value):
+        if f.name in ("effects", "sections") and isinstance(value, tuple):
+            found = next(
+                (x for x in (_non_finite(sec, f"{name}.") for name, sec in value if _instance(sec)) if x), None
+            )
+        elif _instance(value):
             found = _non_finite(value, key + ".")
-            if found:
-                return found
         elif isinstance(value, float) and not math.isfinite(value):
-            return f"{key} = {value}"
+            found = f"{key} = {value}"
+        else:
+            found = None
+        if found:
+            return found
     return None
 
 
@@ -313,6 +326,18 @@ def _check_spec(spec: ModelSpec) -> None:
         ),
         (not spec.dark.temperature or spec.dark.exposure_slope, "dark.temperature needs dark.exposure_slope = true"),
         (spec.dark.doubling_c > 0 and spec.dark.doubling_rel_sd > 0, "dark.doubling_c and doubling_rel_sd must be > 0"),
+        (
+            limit("doubling_c").holds(spec.dark.doubling_c),
+            f"dark.doubling_c; expected {limit('doubling_c').describe()}",
+        ),
+        (
+            limit("temperature_c").holds(spec.dark.temperature_ref_c),
+            f"dark.temperature_ref_c = {spec.dark.temperature_ref_c}; expected {limit('temperature_c').describe()}",
+        ),
+        (
+            limit("exposure_s").holds(spec.reference.exposure_s),
+            f"reference.exposure_s; expected {limit('exposure_s').describe()}",
+        ),
         (spec.saturation.prnu >= 0, "saturation.prnu must be >= 0"),
         (spec.saturation.prnu_log_sd > 0, "saturation.prnu_log_sd must be > 0"),
         (spec.saturation.prnu_bound >= 0, "saturation.prnu_bound must be >= 0"),

@@ -347,10 +347,13 @@ class Calibration:
     ) -> np.ndarray:
         """Signal (DN) per draw for effective stimulus ``x`` with the draws on its first axis
         (shape ``(S, ...)``, or ``(1, ...)`` for the same ``x`` in every draw), at ``setting``'s gain
-        (None: the reference's; it matters only for a nonlinearity of the charge)."""
+        (None: the reference's; it matters only for a nonlinearity of the charge).  Past the polynomial's
+        turning point (:meth:`~bayescal.model.components.response.Response.turning_point`, far beyond any
+        calibrated range) the signal holds its largest value: a response never falls as the light grows."""
         coef = self.coefficients(channel, setting, relative)
         x = np.asarray(x, dtype=float)
         shape = (-1,) + (1,) * (x.ndim - 1)
+        x = np.minimum(x, Response.turning_point(coef).reshape(shape))
         rolloff = (
             None if self.rolloff is None else (self.rolloff[:, 0].reshape(shape), self.rolloff[:, 1].reshape(shape))
         )

@@ -187,9 +187,11 @@ def _channel_names(job: FrameJob) -> list[str]:
 
 
 def _on_cluster(jobs: Sequence[FrameJob], scheduler: str, tick: Callable[[int], None] | None) -> list[dict]:
-    from distributed import Client, as_completed
+    from distributed import as_completed
 
-    with Client(scheduler) as client:
+    from bayescal.io.cluster import connect
+
+    with connect(scheduler) as client:
         futures = client.map(invert_frame, list(jobs), pure=False)
         order = {f.key: i for i, f in enumerate(futures)}
         results: list[dict | None] = [None] * len(jobs)

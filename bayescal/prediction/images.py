@@ -18,7 +18,7 @@ import xarray as xr
 
 from bayescal.errors import SpecError, TableError
 from bayescal.io.cfa import CFA_PATTERNS, cfa_cells, channel_map
-from bayescal.io.files import read_image
+from bayescal.io.files import read_image, write_netcdf
 from bayescal.io.outputs import staged_directory
 from bayescal.model.setting import Setting
 from bayescal.posterior.calibration import Calibration
@@ -140,7 +140,7 @@ def write_radiance_maps(ds: xr.Dataset, out_dir: str | os.PathLike) -> Path:
     out_dir = Path(out_dir)
     meta = json.dumps({k: (v.item() if hasattr(v, "item") else v) for k, v in ds.attrs.items()})
     with staged_directory(out_dir, kind="radiance") as stage:
-        ds.to_netcdf(stage("radiance.nc"), engine="h5netcdf")
+        write_netcdf(ds, stage("radiance.nc"))
         for name in ("median", "lower", "upper"):
             tifffile.imwrite(stage(f"{name}.tif"), ds[name].to_numpy().astype(np.float32), description=meta)
         tifffile.imwrite(stage("bound.tif"), ds["bound"].to_numpy().astype(np.uint8), description=meta)

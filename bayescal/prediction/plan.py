@@ -105,6 +105,11 @@ def plan_exposure(
         assert dn is not None  # one of the two is given (checked above)
         if current is None:
             raise SpecError("dn= needs the current= setting it was read at")
+        if dn > cal.full_scale:
+            raise SpecError(
+                f"the current reading {dn:g} DN exceeds the calibration's full scale of {cal.full_scale:g} DN "
+                f"({cal.bits} bits): is it from another camera, or another bit depth?"
+            )
         if dn >= cal.saturation_dn:
             raise SpecError(
                 f"the current reading {dn:g} DN is clipped; its stimulus has only a lower bound. "

@@ -53,8 +53,8 @@ def _run(capsys, argv) -> tuple[int, str]:
 OPTION_CASES = [
     ("predict n-avg 0", ["predict", "{fit}", "--exposure-s", "0.01", "--n-avg", "0"], "above 0"),
     ("predict n-avg negative", ["predict", "{fit}", "--exposure-s", "0.01", "--n-avg", "-2"], "above 0"),
-    ("predict exposure 0", ["predict", "{fit}", "--exposure-s", "0"], "--exposure-s: '0'; expected a number above 0"),
-    ("predict exposure negative", ["predict", "{fit}", "--exposure-s", "-0.01"], "above 0"),
+    ("predict exposure 0", ["predict", "{fit}", "--exposure-s", "0"], "--exposure-s: '0'; expected 0 < exposure <= 86400 s"),
+    ("predict exposure negative", ["predict", "{fit}", "--exposure-s", "-0.01"], "0 < exposure"),
     ("predict gain 0", ["predict", "{fit}", "--exposure-s", "0.01", "--gain", "0"], "--gain"),
     ("predict tdi negative", ["predict", "{fit}", "--exposure-s", "0.01", "--tdi-stages", "-2"], "--tdi-stages"),
     ("predict seed negative", ["predict", "{fit}", "--exposure-s", "0.01", "--seed", "-1"], "whole number >= 0"),
@@ -72,14 +72,14 @@ OPTION_CASES = [
     (
         "plan exposure negative",
         ["plan", "{fit}", "--channel", "G", "--dn", "500", "--exposures", "0.004,-1"],
-        "above 0",
+        "--exposures: '-1'; expected 0 < exposure",
     ),
     (
         "plan gain 0",
         ["plan", "{fit}", "--channel", "G", "--dn", "500", "--exposures", "0.004", "--gains", "0"],
-        "above",
+        "--gains: '0'; expected 0 < gain",
     ),
-    ("plan tdi 0", ["plan", "{fit}", "--channel", "G", "--dn", "5", "--exposures", "1", "--tdi-stages", "0"], "above"),
+    ("plan tdi 0", ["plan", "{fit}", "--channel", "G", "--dn", "5", "--exposures", "1", "--tdi-stages", "0"], "1 <= TDI"),
     (
         "plan window reversed",
         ["plan", "{fit}", "--channel", "G", "--dn", "5", "--exposures", "1", "--window", "9,2"],

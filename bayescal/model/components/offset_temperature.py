@@ -26,6 +26,8 @@ from typing import Literal
 import numpy as np
 
 from bayescal.errors import SpecError, TableError
+from bayescal.io.checks import require_spread
+from bayescal.io.limits import check_value
 from bayescal.model.components.base import Effect
 from bayescal.model.components.temperature import COLUMN, ChannelCoefficients, true_coefficients
 
@@ -49,6 +51,7 @@ class OffsetTemperatureSpec:
     prior_dn_per_c: float = 2.0
 
     def __post_init__(self) -> None:
+        check_value(self.reference_c, "temperature_c", "offset_temperature.reference_c")
         if not self.prior_dn_per_c > 0:
             raise SpecError("offset_temperature.prior_dn_per_c must be > 0")
 
@@ -85,6 +88,7 @@ class OffsetTemperature(Effect):
         dark = frame["stimulus"].to_numpy() == 0
         if section.enabled == "auto" and np.unique(frame.loc[dark, COLUMN].dropna()).size < 2:
             return None
+        require_spread(frame[COLUMN].to_numpy(dtype=float), "offset_temperature.enabled", COLUMN)
         return cls(section, frame["channel"].nunique())
 
     @classmethod

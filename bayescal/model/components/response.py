@@ -149,6 +149,29 @@ class Response(Component):
         return signal if rolloff is None else Response.compress(signal, *rolloff, xp)
 
     @staticmethod
+    def turning_point(coef: np.ndarray) -> np.ndarray:
+        """The first ``x > 0`` where the polynomial :meth:`signal` stops rising, per draw (``coef`` (S, P);
+        ``inf`` where it rises for ever).  A sensor's response never falls as the light grows: past this
+        point a prediction holds the polynomial's largest value (:meth:`Calibration.signal_dn
+        <bayescal.posterior.calibration.Calibration.signal_dn>`) instead of following it down."""
+        coef = np.asarray(coef, dtype=float)
+        n = coef.shape[-1]
+        turn = np.full(coef.shape[:-1], np.inf)
+        if n == 1:
+            return turn
+        slope = coef * np.arange(1, n + 1)  # dS/dx = sum_k k A_k x^(k-1): slope[k] multiplies x^k
+        top = slope[..., -1]
+        ok = top != 0
+        companion = np.zeros(coef.shape[:-1] + (n - 1, n - 1))
+        companion[..., 0, :] = -slope[..., -2::-1] / np.where(ok, top, 1.0)[..., None]
+        if n > 2:
+            companion[..., np.arange(1, n - 1), np.arange(n - 2)] = 1.0
+        roots = np.linalg.eigvals(companion)
+        real = np.abs(roots.imag) <= 1e-9 * np.maximum(np.abs(roots.real), 1e-300)
+        positive = np.where(real & (roots.real > 0), roots.real, np.inf).min(axis=-1)
+        return np.where(ok, positive, turn)
+
+    @staticmethod
     def compress(signal, knee, power, xp=np):
         """The roll-off towards full scale: ``S / (1 + (S / K)^p)^(1/p)`` for ``S >= 0`` (``S`` itself
         below zero); monotone, linear for ``S << K``, approaching ``K`` from below."""

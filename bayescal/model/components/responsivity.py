@@ -25,6 +25,8 @@ from typing import Literal
 import numpy as np
 
 from bayescal.errors import SpecError, TableError
+from bayescal.io.checks import require_spread
+from bayescal.io.limits import check_value
 from bayescal.model.components.base import Effect
 from bayescal.model.components.temperature import COLUMN, ChannelCoefficients, true_coefficients
 
@@ -49,6 +51,7 @@ class ResponsivitySpec:
     coefficient_prior_sd: float = 0.01
 
     def __post_init__(self) -> None:
+        check_value(self.reference_c, "temperature_c", "responsivity.reference_c")
         if not self.coefficient_prior_sd > 0:
             raise SpecError("responsivity.coefficient_prior_sd must be > 0")
 
@@ -84,6 +87,7 @@ class ResponsivityTemperature(Effect):
         lit = frame["stimulus"].to_numpy() > 0
         if section.temperature == "auto" and np.unique(frame.loc[lit, COLUMN]).size < 2:
             return None
+        require_spread(frame.loc[lit, COLUMN].to_numpy(dtype=float), "responsivity.temperature", COLUMN)
         return cls(section, frame["channel"].nunique())
 
     def inputs(self, frame) -> dict[str, np.ndarray]:
