@@ -50,8 +50,6 @@ COLUMN_LIMITS = {
     "dn_var": "dn_var",
     "radiance_u_rel": "relative",
 }
-_POSITIVE = ("exposure_s", "gain", "tdi_stages", "n_frames", "n_pixels")
-_NONNEGATIVE = ("radiance", "irradiance", "radiance_u_rel")
 _CONDITION = ("channel", "stimulus", "exposure_s", "gain", "tdi_stages", "temperature_c", "level", "replicate")
 
 
@@ -223,29 +221,6 @@ def _numeric(col: pd.Series, name: str) -> pd.Series:
 
 
 def _check_ranges(out: pd.DataFrame, stimulus: str) -> None:
-    for col in _POSITIVE:
-        if col in out:
-            bad = np.flatnonzero(out[col].to_numpy() <= 0)
-            if bad.size:
-                raise TableError(f"{out[col].iloc[bad[0]]:g} is not positive; expected > 0", row=bad[0] + 1, column=col)
-    for col in _NONNEGATIVE:
-        key = "stimulus" if col == stimulus else col
-        if key in out and (col == stimulus or col not in STIMULUS_COLUMNS):
-            bad = np.flatnonzero(out[key].to_numpy() < 0)
-            if bad.size:
-                raise TableError(
-                    f"{out[key].iloc[bad[0]]:g} is negative; expected >= 0 (dark rows have 0)",
-                    row=bad[0] + 1,
-                    column=col,
-                )
-    bad = np.flatnonzero(out["dn_mean"].to_numpy() < 0)
-    if bad.size:
-        raise TableError(
-            f"{out['dn_mean'].iloc[bad[0]]:g} is negative; expected the camera's raw mean output in DN (>= 0), "
-            "not dark-subtracted values (dark rows are part of the table)",
-            row=bad[0] + 1,
-            column="dn_mean",
-        )
     for col, name in COLUMN_LIMITS.items():
         key = "stimulus" if col == stimulus else col
         if key in out and (col == stimulus or col not in STIMULUS_COLUMNS):

@@ -1,0 +1,5 @@
+"""``python -m bayescal``: the ``bayescal`` command."""
+
+from bayescal.cli import main
+
+raise SystemExit(main())
