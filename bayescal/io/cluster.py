@@ -23,6 +23,8 @@ def scheduler_address(text: str, what: str = "--scheduler") -> str:
     """``text`` if it is a scheduler address (``tcp://host:8786``, ``host:8786``, ``tls://...``), else
     :class:`~bayescal.errors.SpecError` saying what was expected."""
     value = str(text).strip()
+    if value.startswith("inproc://") and len(value) > len("inproc://"):  # an address within this process
+        return value
     m = _ADDRESS.match(value)
     port = m.group("port") if m else None
     if m is None or (m.group("scheme") or "tcp") not in SCHEMES or (port is not None and not 0 < int(port) < 65536):
@@ -30,7 +32,7 @@ def scheduler_address(text: str, what: str = "--scheduler") -> str:
             f"{what} '{text}' is not a scheduler address; expected e.g. tcp://host:8786 "
             f"(schemes: {', '.join(SCHEMES)}; the port 1-65535)"
         )
-    if m.group("scheme") != "inproc" and port is None:
+    if port is None:
         raise SpecError(f"{what} '{text}' names no port; expected e.g. tcp://{m.group('host')}:8786")
     return value
 

@@ -38,6 +38,14 @@ class Limit:
         below = x < self.high if self.high_open else x <= self.high
         return above and below
 
+    def fault(self, x: float) -> str:
+        """What is wrong with ``x`` in words (``"is negative"``, ``"is not positive"``, ``"is out of range"``)."""
+        if math.isfinite(x) and self.low == 0 and self.low_open and x <= 0:
+            return "is not positive"
+        if math.isfinite(x) and self.low == 0 and x < 0:
+            return "is negative"
+        return "is out of range"
+
     def describe(self) -> str:
         """The range in words: ``-273.15 < temperature <= 200 degC``."""
         lo = "<" if self.low_open else "<="

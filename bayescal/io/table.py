@@ -229,7 +229,9 @@ def _check_ranges(out: pd.DataFrame, stimulus: str) -> None:
             bad = np.flatnonzero(~np.array([lim.holds(v) for v in values]))
             if bad.size:
                 raise TableError(
-                    f"{values[bad[0]]:g} is out of range; expected {lim.describe()}", row=bad[0] + 1, column=col
+                    f"{values[bad[0]]:g} {lim.fault(values[bad[0]])}; expected {lim.describe()}",
+                    row=bad[0] + 1,
+                    column=col,
                 )
     for col in ("n_frames", "n_pixels", "tdi_stages"):
         v = out[col].to_numpy()

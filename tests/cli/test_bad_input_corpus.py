@@ -53,7 +53,11 @@ def _run(capsys, argv) -> tuple[int, str]:
 OPTION_CASES = [
     ("predict n-avg 0", ["predict", "{fit}", "--exposure-s", "0.01", "--n-avg", "0"], "above 0"),
     ("predict n-avg negative", ["predict", "{fit}", "--exposure-s", "0.01", "--n-avg", "-2"], "above 0"),
-    ("predict exposure 0", ["predict", "{fit}", "--exposure-s", "0"], "--exposure-s: '0'; expected 0 < exposure <= 86400 s"),
+    (
+        "predict exposure 0",
+        ["predict", "{fit}", "--exposure-s", "0"],
+        "--exposure-s: '0'; expected 0 < exposure <= 86400 s",
+    ),
     ("predict exposure negative", ["predict", "{fit}", "--exposure-s", "-0.01"], "0 < exposure"),
     ("predict gain 0", ["predict", "{fit}", "--exposure-s", "0.01", "--gain", "0"], "--gain"),
     ("predict tdi negative", ["predict", "{fit}", "--exposure-s", "0.01", "--tdi-stages", "-2"], "--tdi-stages"),
@@ -79,7 +83,11 @@ OPTION_CASES = [
         ["plan", "{fit}", "--channel", "G", "--dn", "500", "--exposures", "0.004", "--gains", "0"],
         "--gains: '0'; expected 0 < gain",
     ),
-    ("plan tdi 0", ["plan", "{fit}", "--channel", "G", "--dn", "5", "--exposures", "1", "--tdi-stages", "0"], "1 <= TDI"),
+    (
+        "plan tdi 0",
+        ["plan", "{fit}", "--channel", "G", "--dn", "5", "--exposures", "1", "--tdi-stages", "0"],
+        "1 <= TDI",
+    ),
     (
         "plan window reversed",
         ["plan", "{fit}", "--channel", "G", "--dn", "5", "--exposures", "1", "--window", "9,2"],

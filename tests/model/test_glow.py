@@ -64,7 +64,9 @@ def test_a_spec_that_names_it_in_the_dark_section_still_reads(seed000):
     old.pop("glow")
     old["dark"] = old["dark"] | {"glow": True}
     assert bc.ModelSpec.from_dict(old).effect("glow").enabled is True
-    both = old | {"glow": {"enabled": False}}  # the new key wins
-    assert bc.ModelSpec.from_dict(both).effect("glow").enabled is False
+    both = old | {"glow": {"enabled": False}}  # the two names contradict each other: refused
+    with pytest.raises(bc.SpecError, match="dark.glow = True and glow.enabled = False contradict each other"):
+        bc.ModelSpec.from_dict(both)
+    assert bc.ModelSpec.from_dict(old | {"glow": {"enabled": True}}).effect("glow").enabled is True
     with pytest.raises(bc.SpecError, match="glow"):
         bc.ModelSpec.from_dict(old | {"glow": {"prior_sd": -1.0}})
