@@ -388,3 +388,14 @@ def test_the_pooled_seed000_nuts_fit_exits_0(tmp_path, good_csv):
         )
         == 0
     )
+
+
+def test_a_bright_step_without_photons_is_named(tmp_path, capsys):
+    """EMVA 1288 steps whose bright rows say 0 photons: the row and the column named (it crashed a
+    least-squares fit of the photon transfer before)."""
+    steps = pd.read_csv(MODELS / "emva_refset001_steps.csv")
+    steps.loc[steps["kind"] == "bright", "photons_per_pixel"] = 0
+    steps.to_csv(tmp_path / "steps.csv", index=False)
+    rc, err = _run(capsys, ["characterize", tmp_path / "steps.csv", "--out", tmp_path / "ch"])
+    assert rc == 2 and "column 'photons_per_pixel'" in err and "has 0 photons per pixel" in err, err
+    assert not (tmp_path / "ch").exists()
