@@ -95,12 +95,66 @@ def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
             out["a dark level that drifted over time_s"] = {"dark": {"drift": True}}
         else:
             out["a dark level that drifted over the run (the rows' order)"] = {"dark": {"drift": "order"}}
+    out |= _temperature_laws(spec, frame)
     for effect in EFFECTS:  # each effect says when the table can measure it
         out |= effect.candidates(spec.effect(effect.section), spec, frame)
     if s.channel_level_rel == 0:
         for rel in CHANNEL_LEVEL_REL:
             name = f"lamp errors that differ by channel, {rel:.1%} per level (its spectrum changes with its level)"
             out[name] = {"sphere": {"channel_level_rel": rel, "channel_scale_rel": CHANNEL_SCALE_REL}}
+    return out
+
+
+def _temperature_laws(spec: ModelSpec, frame) -> dict[str, dict]:
+    """When the table records the sensor temperature at two or more values: the dark current's doubling
+    (dark rows at two or more exposures and temperatures tell it from an offset), and every temperature
+    law the library has that is not on yet, together (a sensor that warms moves its dark current, its black
+    level and its responsivity at once; tried one at a time, each is judged with the others missing)."""
+    if "temperature_c" not in frame or frame["temperature_c"].nunique() < 2:
+        return {}
+    dark = frame["stimulus"].to_numpy() == 0
+    darks = frame.loc[dark]
+    laws: dict[str, dict] = {}
+    if (
+        not spec.dark.temperature
+        and spec.dark.exposure_slope
+        and darks["temperature_c"].nunique() >= 2
+        and darks["exposure_s"].nunique() >= 2
+    ):
+        laws["dark"] = {"temperature": True}
+    if spec.effect("offset_temperature").enabled is not True and darks["temperature_c"].nunique() >= 2:
+        laws["offset_temperature"] = {"enabled": True}
+    lit = frame.loc[~dark, "temperature_c"].nunique() >= 2
+    if spec.effect("responsivity").temperature is not True and lit:
+        laws["responsivity"] = {"temperature": True}
+    out: dict[str, dict] = {}
+    if "dark" in laws:
+        out["a dark current that doubles with the sensor temperature (temperature_c)"] = {"dark": laws["dark"]}
+    if len(laws) > 1:
+        out["every temperature law together: dark current, black level and responsivity (temperature_c)"] = laws
+    return out
+
+
+#: the sections whose candidates follow a covariate the table records (time, temperature) or the dark rows'
+#: exposures: screened even when a fit passes its checks, since their departures can pass every check
+SCREENED = ("dark", "glow", "offset_temperature", "responsivity", "stimulus_drift", "offset_drift")
+
+
+def screen_candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
+    """The candidates a fit that passes its checks is still screened with: those over a covariate the table
+    records (``time_s``, ``temperature_c``) and the amplifier glow; not those over the rows' order."""
+    frame = table.frame
+    recorded = {c for c in ("time_s", "temperature_c") if c in frame and frame[c].nunique() > 1}
+    out = {}
+    for name, changes in candidates(spec, table).items():
+        if not set(changes) <= set(SCREENED):
+            continue
+        over = [v.get("over") for v in changes.values() if isinstance(v, dict) and "over" in v]
+        if any(o not in recorded for o in over):
+            continue
+        if "dark" in changes and "drift" in changes["dark"]:
+            continue
+        out[name] = changes
     return out
 
 
@@ -251,11 +305,15 @@ def _difference(current, candidate) -> tuple[float, float]:
     return float(d.sum()), float(np.sqrt(d.size * np.var(d)))
 
 
-def diagnose(table: MeasurementTable, spec: ModelSpec, seed: int = 0, base: Fit | None = None) -> Diagnosis:
+def diagnose(
+    table: MeasurementTable, spec: ModelSpec, seed: int = 0, base: Fit | None = None, offered=None
+) -> Diagnosis:
     """Search the library's switches for a model that describes ``table`` (see the module docstring).
 
-    ``base``: a Laplace fit of ``spec`` already made (refitted otherwise).
+    ``base``: a Laplace fit of ``spec`` already made (refitted otherwise).  ``offered(spec, table)``:
+    the candidates to try (default :func:`candidates`; :func:`screen_candidates` for a fit that passed).
     """
+    offered = offered or candidates
     current_spec = spec
     proxy = laplace_proxy(spec)
     reuse = base is not None and base.backend == "laplace" and proxy is spec
@@ -265,7 +323,7 @@ def diagnose(table: MeasurementTable, spec: ModelSpec, seed: int = 0, base: Fit 
     steps = []
     for _ in range(MAX_STEPS):
         rows, fits = [], {}
-        for name, changes in candidates(current_spec, table).items():
+        for name, changes in offered(current_spec, table).items():
             trial = current_spec.replace(**changes)
             result = _quiet_fit(
                 table, laplace_proxy(trial).replace(inference={"holdout_check": False}), "laplace", seed
@@ -375,11 +433,20 @@ def _misfit_only(result: Fit) -> bool:
 
 
 def fit_diagnosed(
-    table: MeasurementTable, spec: ModelSpec, backend: str = "nuts", *, seed: int = 0, stage=None, **kw
+    table: MeasurementTable,
+    spec: ModelSpec,
+    backend: str = "nuts",
+    *,
+    seed: int = 0,
+    stage=None,
+    screen: bool = True,
+    **kw,
 ) -> tuple[Fit, Diagnosis | None]:
     """:func:`~bayescal.fitting.fit.fit`, and when the fit does not describe its data, :func:`diagnose`:
-    the backend then fits the spec the search found.  Returns the final fit (its diagnostics carry
-    the diagnosis) and the diagnosis (None when the first fit passed, or failed in its sampler)."""
+    the backend then fits the spec the search found.  A fit that passes is screened with the candidates
+    over what the table records (``screen``; :func:`screen_candidates`).  Returns the final fit (its
+    diagnostics carry the diagnosis) and the diagnosis (None when nothing was adopted, or the first fit
+    failed in its sampler)."""
     if backend == "lsq" or not kinds_calibration(spec):  # nothing to diagnose: the baseline, another kind
         return fit(table, spec, backend, seed=seed, stage=stage, **kw), None
     if stage is not None and other_domain(spec, table) is not None:
@@ -394,6 +461,8 @@ def fit_diagnosed(
     )
     if domain is not None:
         first = replace(first, diagnostics=first.diagnostics.with_check("domain", [], domain))
+    if first.ok and screen:
+        return _screened(table, spec, backend, first, laplace, seed, stage, kw)
     if first.ok or not _misfit_only(first):
         return first, None
     if stage is not None:
@@ -416,3 +485,25 @@ def fit_diagnosed(
         )
         diag = replace(diag, ok=False, problems=tuple(dict.fromkeys(diag.problems + (problem,))))
     return replace(final, diagnostics=diag), found
+
+
+def _screened(
+    table, spec, backend, first: Fit, laplace: Fit | None, seed: int, stage, kw
+) -> tuple[Fit, Diagnosis | None]:
+    """A fit that passes its checks, screened with the candidates over what the table records
+    (:func:`screen_candidates`): a departure that follows the time or the temperature, or a dark signal
+    that grows faster than the exposure, can pass every check of the residuals while its offsets are off.
+    A candidate adopted by PSIS-LOO replaces the fit only when its own fit passes too."""
+    if not screen_candidates(spec, table):
+        return first, None
+    if stage is not None:
+        stage("screening what the table records (time, temperature, dark exposures) by PSIS-LOO (Laplace)")
+    found = diagnose(table, spec, seed, base=laplace if laplace is not None else None, offered=screen_candidates)
+    diag = first.diagnostics.with_check("screen", [], found.to_dict())
+    if not found.adopted or not found.explained:
+        return replace(first, diagnostics=diag), None
+    reused = found.fit if backend == "laplace" and not kw else None
+    final = reused if reused is not None else fit(table, found.spec, backend, seed=seed, **kw)
+    if not final.ok:  # the adopted model fails where the spec's passed: keep the spec's
+        return replace(first, diagnostics=diag), None
+    return replace(final, diagnostics=final.diagnostics.with_check("diagnosis", [], found.to_dict())), found

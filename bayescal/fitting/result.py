@@ -372,6 +372,8 @@ def _coords(model: CalibrationModel) -> dict:
         coords["gain_setting"] = list(layout.gain_values)
     else:
         coords["gain_setting"] = [spec.reference.gain]
+    for effect in model.parts.effects:
+        coords |= effect.coords()
     return coords
 
 

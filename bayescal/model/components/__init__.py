@@ -17,6 +17,7 @@ import numpy as np
 
 from bayescal.model.components.base import Component, Context, Effect, FactorTerm, OffsetTerm, StimulusFactor
 from bayescal.model.components.dark import Dark, DarkSpec, DarkTerm
+from bayescal.model.components.drift import OffsetDrift, StimulusDrift
 from bayescal.model.components.glow import Glow
 from bayescal.model.components.noise import Noise, NoiseSpec
 from bayescal.model.components.offset_temperature import OffsetTemperature
@@ -59,7 +60,14 @@ __all__ = [
 CORE: tuple[type[Component], ...] = (Response, Dark, Sphere, Noise, Saturation, SettingFactors)
 
 #: the optional effects with a spec section of their own: factors on the effective stimulus, or offsets (their role)
-EFFECTS: tuple[type[Effect], ...] = (ResponsivityTemperature, ShutterOffset, OffsetTemperature, Glow)
+EFFECTS: tuple[type[Effect], ...] = (
+    ResponsivityTemperature,
+    ShutterOffset,
+    OffsetTemperature,
+    Glow,
+    StimulusDrift,
+    OffsetDrift,
+)
 
 
 def effect(section: str) -> type[Effect]:

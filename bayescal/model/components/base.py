@@ -133,6 +133,10 @@ class Effect(StimulusFactor):
         """Per-row inputs the component reads from the table (into ``ModelData.extra``)."""
         return {}
 
+    def coords(self) -> dict[str, list]:
+        """Coordinates of the dims its sites have beyond the model's own (channel, ...)."""
+        return {}
+
     @classmethod
     def candidates(cls, section: Any, spec: Any, frame: pd.DataFrame) -> dict[str, dict]:
         """What the diagnosis (:func:`bayescal.fitting.diagnose.candidates`) may try when a model without
