@@ -115,11 +115,13 @@ def misfit_checks(
     excess_dn: np.ndarray | None,
     censored: np.ndarray,
     thresholds: MisfitThresholds = MisfitThresholds(),  # noqa: B008 - frozen
+    terms_on: frozenset[str] = frozenset(),
 ) -> tuple[list[str], dict]:
     """Run the checks on one fit's posterior predictive summaries (all in DN, one value per row).
 
-    Returns the problems found (empty: the model fits its data) and the
-    numbers behind them.
+    ``terms_on``: the drift terms the model has (``"dark.drift"``, ``"offset_drift"``,
+    ``"stimulus_drift"``): a remedy never suggests one of them.  Returns the problems found (empty: the
+    model fits its data) and the numbers behind them.
     """
     problems: list[str] = []
     lit = (frame["stimulus"].to_numpy() > 0) & ~censored
@@ -161,32 +163,103 @@ def misfit_checks(
                     "the response shape is not one the model can draw (a roll-off near full scale? a higher order?)"
                 )
     info["runs_z"] = runs
-    info.update(_drift_check(frame, z, usable, thresholds, problems))
+    info.update(_drift_check(frame, z, usable, thresholds, problems, resid, signal_dn, terms_on))
     return problems, info
 
 
-def _drift_check(frame: pd.DataFrame, z: np.ndarray, usable: np.ndarray, thresholds: MisfitThresholds, problems):
+#: what each place of a drift is called, the term that models it, and the spec change that switches it on
+_DRIFT_PLACES = {
+    "offset": ("added to every reading (a black level or dark signal that moved)", "offset_drift"),
+    "stimulus": (
+        "on the stimulus, the same fraction in every channel (a lamp or sphere that drifted)",
+        "stimulus_drift",
+    ),
+}
+
+
+def _drift_check(
+    frame: pd.DataFrame,
+    z: np.ndarray,
+    usable: np.ndarray,
+    thresholds: MisfitThresholds,
+    problems,
+    resid: np.ndarray | None = None,
+    signal: np.ndarray | None = None,
+    terms_on: frozenset[str] = frozenset(),
+):
     """Runs of the residual signs along the measurement order: a camera or bench that drifted during the run.
 
-    The order is ``time_s`` where the table has it, else the row order (the
-    order most labs write rows in).  Under the model the residuals are
-    independent of either order, so the check's false-alarm rate is that of
-    the runs test whatever the order.
+    The order is ``time_s`` where the table has it, else the row order (the order most labs write rows
+    in).  Under the model the residuals are independent of either order, so the check's false-alarm rate
+    is that of the runs test whatever the order.  When it fires, the residuals are split by place: the dark
+    rows' in DN (an offset that moved) and the lit rows' relative to their signal (a stimulus that moved),
+    each against a smooth curve over the session; the message names the covariate, the place that explains
+    more and the size of the drift there, the terms that would model it that are not on yet, and the
+    measurement that tells the places apart.
     """
     by_time = "time_s" in frame
     key = frame["time_s"].to_numpy(dtype=float) if by_time else np.arange(len(frame), dtype=float)
     idx = np.flatnonzero(usable)
     order = idx[np.argsort(key[idx], kind="stable")]
     zr = runs_z(z[order]) if order.size >= 8 else 0.0
-    if zr < thresholds.runs_z:
-        where = "time_s" if by_time else "the row order (no time_s column)"
-        remedy = (
-            "set dark.drift = true to fit a dark-level drift over the run"
-            if by_time
-            else "add a time_s column (when each row was measured) and set dark.drift = true"
-        )
-        problems.append(
-            f"residuals change sign too rarely along the measurement order, {where} (runs z = {zr:+.1f}): "
-            f"the camera or the bench drifted during the run; {remedy}"
-        )
-    return {"order_runs_z": zr, "order_by": "time_s" if by_time else "row"}
+    info: dict = {"order_runs_z": zr, "order_by": "time_s" if by_time else "row"}
+    if zr >= thresholds.runs_z:
+        return info
+    where = "time_s" if by_time else "the row order (no time_s column)"
+    places = _drift_places(frame, key, z, usable, resid, signal) if resid is not None and signal is not None else {}
+    info["drift_places"] = places
+    problem = (
+        f"residuals change sign too rarely along the measurement order, {where} (runs z = {zr:+.1f}): the camera "
+        "or the bench drifted during the run"
+    )
+    if places:
+        best = max(places, key=lambda k: places[k]["chi2_drop"])
+        text, term = _DRIFT_PLACES[best]
+        size = places[best]["size"]
+        size_text = f"{size:.2g} DN" if best == "offset" else f"{size:.2%}"
+        problem += f"; it is mostly {text}, a drift of about {size_text} over the session"
+        remedies = []
+        if term not in terms_on:
+            over = "time_s" if by_time else "order"
+            remedies.append(f'[{term}] enabled = true, over = "{over}"')
+        if best == "offset" and "dark.drift" not in terms_on:
+            remedies.append("dark.drift = true" if by_time else 'dark.drift = "order"')
+        if remedies:
+            problem += "; fit it with " + " or ".join(remedies)
+        else:
+            problem += "; the terms the library has for it are on and do not describe it"
+    elif "dark.drift" not in terms_on:
+        problem += "; fit a dark-level drift (dark.drift)"
+    if not by_time:
+        problem += "; record when each frame was taken (a time_s column)"
+    problem += (
+        "; to tell a moving offset from a moving lamp, repeat one sphere level and one dark frame at the start, "
+        "the middle and the end of the session"
+    )
+    problems.append(problem)
+    return info
+
+
+def _drift_places(frame, key, z, usable, resid, signal) -> dict:
+    """For each place of a drift (the dark rows' residuals in DN, the lit rows' relative to their signal):
+    the drop in chi-square when a smooth curve over the session (three cosine terms) is fitted to the
+    standardised residuals there, and the size of that curve (its range: DN, or a fraction)."""
+    span = max(float(np.ptp(key[usable])), 1e-300) if usable.any() else 1.0
+    tau = (key - key[usable].min()) / span if usable.any() else key
+    dark = frame["stimulus"].to_numpy() == 0
+    places = {}
+    for place, rows, values in (
+        ("offset", usable & dark, resid),
+        ("stimulus", usable & ~dark & (np.abs(signal) > 1e-9), resid / np.where(np.abs(signal) > 1e-9, signal, 1.0)),
+    ):
+        if rows.sum() < 6:
+            continue
+        basis = np.cos(np.pi * np.arange(1, 4)[None, :] * tau[rows, None])
+        design = np.column_stack([np.ones(rows.sum()), basis])
+        weights = z[rows] / np.where(values[rows] != 0, values[rows], 1.0)  # 1 / sd in the place's units
+        coef, *_ = np.linalg.lstsq(design * weights[:, None], z[rows], rcond=None)
+        fitted = design @ coef
+        chi2_drop = float(np.sum(z[rows] ** 2) - np.sum((z[rows] - weights * fitted) ** 2))
+        curve = basis @ coef[1:]
+        places[place] = {"chi2_drop": chi2_drop, "size": float(np.ptp(curve)), "rows": int(rows.sum())}
+    return places

@@ -331,9 +331,16 @@ def misfit_of(model: CalibrationModel, rows: dict, excess_dn: np.ndarray | None)
         None if excess_dn is None else np.asarray(excess_dn).ravel(),
         np.asarray(data.censored),
         thresholds,
+        drift_terms(model),
     )
     info["thresholds"] = {"excess_ratio": thresholds.excess_ratio, "group_z": thresholds.group_z}
     return problems, info
+
+
+def drift_terms(model: CalibrationModel) -> frozenset[str]:
+    """The drift terms ``model`` has (their remedies are not suggested again)."""
+    on = {e.section for e in model.parts.effects if e.section in ("offset_drift", "stimulus_drift")}
+    return frozenset(on | ({"dark.drift"} if model.spec.dark.drift else set()))
 
 
 def _check_misfit(model: CalibrationModel, rows: dict, post: dict, diag: Diagnostics) -> Diagnostics:

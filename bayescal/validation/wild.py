@@ -67,6 +67,7 @@ class WildSession:
     shutter_s: float
     sphere_scale: float
     level_error: np.ndarray
+    prnu: np.ndarray  # each channel's pixels' response over the channel's (1 % spread), (3, pixels)
     params: dict = field(default_factory=dict)
 
     def label(self) -> str:
@@ -137,6 +138,7 @@ class WildSession:
         a1 = self.responsivity * self.gain_true[1.0] * self.sphere_scale
         if self.members["crosstalk"] == "neighbour":
             a1 = a1 + self.params["crosstalk"] * (np.roll(a1, 1) + np.roll(a1, -1)) / 2.0
+        a1 = a1 * self.prnu[:, : self.params.get("n_pixels", self.prnu.shape[1])].mean(axis=1)  # the region's
         return pd.DataFrame({"channel": CHANNELS, "A0": a0, "A1": a1})
 
 
@@ -180,6 +182,7 @@ def draw_session(seed: int, departures: int | None = None) -> WildSession:
         shutter_s=rng.uniform(-2e-4, 2e-4),
         sphere_scale=float(np.exp(0.03 * rng.standard_normal())),
         level_error=0.005 * rng.standard_normal(len(LEVELS)),
+        prnu=1.0 + 0.01 * rng.standard_normal((3, 256)),
         params=p,
     )
 
@@ -204,6 +207,9 @@ def simulate_wild(
     """The measurement table a lab would write for the session drawn by ``seed`` (see :func:`draw_session`),
     and the session."""
     session = draw_session(seed, departures)
+    session.params["n_pixels"] = n_pixels  # the region the truth's response is the mean of
+    if n_pixels > session.prnu.shape[1]:
+        raise ValueError(f"n_pixels = {n_pixels}; the simulated region has {session.prnu.shape[1]} pixels")
     rng = np.random.default_rng([seed, 0xF00D])
     plan = _plan(session.members["darks"] == "at the end")
     rows = []
@@ -215,7 +221,7 @@ def simulate_wild(
         signal = session.signal_dn(np.full(3, true * session.lamp(tau)), t, g) if li is not None else np.zeros(3)
         for c, channel in enumerate(CHANNELS):
             dark = session.dark_dn(c, t, g, temp) + session.offset_drift(tau)
-            pixels = signal[c] * (1.0 + 0.01 * rng.standard_normal(n_pixels))  # the pixels' response spread
+            pixels = signal[c] * session.prnu[c, :n_pixels]  # the same pixels in every frame
             electrons = np.maximum(pixels, 0.0) * 4.0 / g  # 4 electrons per DN at gain 1
             sd = np.sqrt((3.0 * g) ** 2 + electrons * (g / 4.0) ** 2)  # read noise 3 DN at gain 1, and shot noise
             frames = dark + pixels + sd * rng.standard_normal((n_frames, n_pixels))
