@@ -221,6 +221,8 @@ class Diagnosis:
         leave-one-setting-out refits, which only the adopted model's fit runs).
     fit : Fit or None
         The Laplace fit of ``spec`` with every check (None when nothing was adopted).
+    trials : dict
+        When nothing was adopted: the first step's candidates, name -> (spec, Laplace fit).
     """
 
     adopted: tuple[str, ...]
@@ -228,6 +230,7 @@ class Diagnosis:
     explained: bool
     steps: list
     fit: Fit | None = field(default=None, repr=False, compare=False)
+    trials: dict = field(default_factory=dict, repr=False, compare=False)
 
     def describe(self) -> str:
         """The diagnosis in words, for the command line."""
@@ -321,6 +324,7 @@ def diagnose(
     current_loo = _loo(current)
     adopted: list[str] = []
     steps = []
+    trials: dict = {}  # the first step's candidates and their fits
     for _ in range(MAX_STEPS):
         rows, fits = [], {}
         for name, changes in offered(current_spec, table).items():
@@ -338,13 +342,15 @@ def diagnose(
             break
         step = pd.DataFrame(rows).sort_values("elpd_diff", ascending=False).reset_index(drop=True)
         steps.append(step)
+        trials = trials or fits
         best = step.iloc[0]
         if best.elpd_diff <= EVIDENCE_SE * best.dse:  # nothing adds what the data can tell
             break
         current_spec, current, current_loo = fits[best.candidate]
         adopted.append(str(best.candidate))
     if not adopted:
-        return Diagnosis((), current_spec, bool(current.ok), steps)
+        first = {name: (trial, result) for name, (trial, result, _) in trials.items()}
+        return Diagnosis((), current_spec, bool(current.ok), steps, trials=first)
     final = _quiet_fit(table, laplace_proxy(current_spec), "laplace", seed)  # the adopted model, every check
     return Diagnosis(tuple(adopted), current_spec, bool(final.ok), steps, final)
 
@@ -500,10 +506,55 @@ def _screened(
         stage("screening what the table records (time, temperature, dark exposures) by PSIS-LOO (Laplace)")
     found = diagnose(table, spec, seed, base=laplace if laplace is not None else None, offered=screen_candidates)
     diag = first.diagnostics.with_check("screen", [], found.to_dict())
-    if not found.adopted or not found.explained:
+    if found.adopted and found.explained:
+        reused = found.fit if backend == "laplace" and not kw else None
+        final = reused if reused is not None else fit(table, found.spec, backend, seed=seed, **kw)
+        if not final.ok:  # the adopted model fails where the spec's passed: keep the spec's
+            return replace(first, diagnostics=diag), None
+        return replace(final, diagnostics=final.diagnostics.with_check("diagnosis", [], found.to_dict())), found
+    doubt = structure_doubt(first, found)
+    if doubt is None:
         return replace(first, diagnostics=diag), None
-    reused = found.fit if backend == "laplace" and not kw else None
-    final = reused if reused is not None else fit(table, found.spec, backend, seed=seed, **kw)
-    if not final.ok:  # the adopted model fails where the spec's passed: keep the spec's
-        return replace(first, diagnostics=diag), None
-    return replace(final, diagnostics=final.diagnostics.with_check("diagnosis", [], found.to_dict())), found
+    name, info = doubt
+    trial_spec = found.trials[name][0]
+    final = fit(table, trial_spec, backend, seed=seed, **kw)
+    if not final.ok:
+        return replace(first, diagnostics=diag.with_check("structure", [], info)), None
+    return replace(
+        final, diagnostics=final.diagnostics.with_check("screen", [], found.to_dict()).with_check("structure", [], info)
+    ), None
+
+
+#: a candidate the data cannot tell from the spec (elpd within this many se) that moves a reported coefficient
+#: by more than this many of the spec's posterior sds is a doubt about the model the intervals must carry
+DOUBT_Z = 2.0
+
+
+def structure_doubt(base: Fit, found: Diagnosis) -> tuple[str, dict] | None:
+    """The screened candidate whose structure the data cannot tell from the spec's but which disagrees on
+    the reported coefficients: its elpd_loo is within :data:`EVIDENCE_SE` standard errors of the spec's (or
+    above), its fit passes, and it moves some channel's ``A0`` or ``A1`` by more than :data:`DOUBT_Z` of the
+    spec's posterior sds.  Every screened candidate nests the spec (its term at zero is the spec), so its
+    posterior carries both structures: it is the one reported, and the quantities it moved are named as
+    limited by the structure.  Returns (name, what moved) or None."""
+    if not found.steps or not found.trials or base.posterior is None:
+        return None
+    ref = base.draws("A_rel")[..., :2]
+    mean, sd = ref.mean(axis=0), ref.std(axis=0)
+    channels = list(base.model.layout.channels)
+    best: tuple[float, str, dict] | None = None
+    for r in found.steps[0].itertuples():
+        trial = found.trials.get(r.candidate)
+        if trial is None or not r.fit_ok or r.elpd_diff < -EVIDENCE_SE * r.dse or trial[1].posterior is None:
+            continue
+        other = trial[1].draws("A_rel")[..., :2]
+        z = np.abs(other.mean(axis=0) - mean) / np.maximum(sd, 1e-300)
+        if z.max() > DOUBT_Z and (best is None or z.max() > best[0]):
+            moved = {
+                f"{c} {name}": round(float(z[i, k]), 2)
+                for i, c in enumerate(channels)
+                for k, name in enumerate(("A0", "A1"))
+                if z[i, k] > DOUBT_Z
+            }
+            best = (float(z.max()), str(r.candidate), {"candidate": str(r.candidate), "moved_sd": moved})
+    return None if best is None else (best[1], best[2])

@@ -202,15 +202,15 @@ class _Drift(Effect):
 
 @dataclass(frozen=True)
 class StimulusDriftSpec(DriftSpec):
-    """``[stimulus_drift]``: as :class:`DriftSpec`, on by default wherever the table records ``time_s``,
-    with five terms.  A lamp that warms up or settles during a session whose settings are measured one
-    block after another is absorbed by the settings' effective factors and passes every check of the
-    residuals; without this term the coefficients relative to the sphere then miss their truth silently
-    (on the independent simulator, 6 lamp sessions: 3 of 36 coefficient-fits covered, with it 19-22), and
-    with it their intervals carry the lamp's doubt that the design cannot remove.  A design that repeats a
-    sphere level at the start, the middle and the end of the session measures the drift and narrows them."""
+    """``[stimulus_drift]``: as :class:`DriftSpec`, with five terms.  A lamp that warms up or settles during
+    a session whose settings are measured one block after another is absorbed by the settings' effective
+    factors and passes every check of the residuals while the coefficients relative to the sphere miss their
+    truth.  The data can rarely tell the two structures apart, so the screen of a fit that passes
+    (:func:`bayescal.fitting.diagnose.structure_doubt`) reports the drift's model, whose intervals carry the
+    lamp's doubt, whenever it moves a coefficient; a design that repeats a sphere level at the start, the
+    middle and the end of the session measures the drift and narrows them."""
 
-    enabled: Literal[True, False, "auto"] = "auto"
+    enabled: Literal[True, False, "auto"] = False
     terms: int = 5
 
 
