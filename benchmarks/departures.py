@@ -96,9 +96,7 @@ def summary(df: pd.DataFrame) -> str:
                 continue
             o = sub[sub.verdict == "ok"]
             rate = (o.coefficients - o.covered).sum() / max(o.coefficients.sum(), 1)
-            lines.append(
-                f"| {family} | {member} | {len(sub)} | {int((sub.verdict != 'ok').sum())} | {rate:.3f} |"
-            )
+            lines.append(f"| {family} | {member} | {len(sub)} | {int((sub.verdict != 'ok').sum())} | {rate:.3f} |")
     return "\n".join(lines) + "\n"
 
 
@@ -121,8 +119,11 @@ def main() -> None:
             done[seed] = row
             with checkpoint.open("a") as f:
                 f.write(json.dumps(row) + "\n")
-            print(f"seed {seed}: {row['verdict']} {row.get('covered', '-')}/{row.get('coefficients', '-')} "
-                  f"[{row['departures']}] {row.get('adopted', '')} ({row.get('seconds', '-')} s)", file=sys.stderr)
+            print(
+                f"seed {seed}: {row['verdict']} {row.get('covered', '-')}/{row.get('coefficients', '-')} "
+                f"[{row['departures']}] {row.get('adopted', '')} ({row.get('seconds', '-')} s)",
+                file=sys.stderr,
+            )
     df = pd.DataFrame([done[s] for s in sorted(done)])
     df.to_csv(args.out + ".csv", index=False)
     Path(args.out + ".md").write_text(summary(df))

@@ -285,7 +285,7 @@ def laplace_proxy(spec: ModelSpec) -> ModelSpec:
     return spec.replace(response={"pooled": False, "gain_prior": gain_prior}, dark={"pooled": False})
 
 
-def _quiet_fit(table, spec, backend, seed):
+def _quiet_fit(table, spec, backend, seed) -> Fit:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FitFailedWarning)
         warnings.simplefilter("ignore", UserWarning)
@@ -319,8 +319,10 @@ def diagnose(
     offered = offered or candidates
     current_spec = spec
     proxy = laplace_proxy(spec)
-    reuse = base is not None and base.backend == "laplace" and proxy is spec
-    current = base if reuse else _quiet_fit(table, proxy, "laplace", seed)
+    if base is not None and base.backend == "laplace" and proxy is spec:
+        current: Fit = base
+    else:
+        current = _quiet_fit(table, proxy, "laplace", seed)
     current_loo = _loo(current)
     adopted: list[str] = []
     steps = []
