@@ -48,6 +48,7 @@ def one(seed: int, backend: str) -> dict:
         **{f"family_{k}": v for k, v in session.members.items()},
         "verdict": "ok" if fit.ok else "refused",
         "adopted": " + ".join(found.adopted) if found is not None and found.adopted else "",
+        "doubt": (fit.diagnostics.extra.get("structure") or {}).get("candidate", ""),
         "seconds": round(time.perf_counter() - start, 1),
         "message": "" if fit.ok else " | ".join(fit.diagnostics.problems)[:600],
     }

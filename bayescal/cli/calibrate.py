@@ -63,6 +63,14 @@ def run_fit(
     if found is not None:
         print("DIAGNOSIS: the spec's model did not describe the data; what the library has, by PSIS-LOO:")
         print(found.describe() + "\n")
+    doubt = result.diagnostics.extra.get("structure")
+    if doubt:
+        moved = ", ".join(f"{k} by {v:g} sd" for k, v in doubt["moved_sd"].items())
+        print(
+            f"MODEL DOUBT: the data cannot tell the spec from '{doubt['candidate']}', which moves {moved}; "
+            "the posterior below carries both (the candidate nests the spec): measure what tells them apart "
+            "to narrow it\n"
+        )
     print(result.summary_text())
     if report and result.posterior is not None:
         from bayescal.report.html import write_report

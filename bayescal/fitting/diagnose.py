@@ -81,6 +81,7 @@ def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
         out[f"nonlinearity of the {other} ({where})"] = domain
     if not r.rolloff and _reaches(frame, spec, ROLLOFF_REACH):
         out["a soft roll-off towards full scale (not a polynomial)"] = {"response": {"rolloff": True}}
+        out["a monotone roll-off towards full scale of any smooth shape"] = {"response": {"rolloff": "monotone"}}
         if domain is not None:  # the domain was decided without a roll-off; with one it may be the other
             other = domain["response"]["nonlinearity_domain"]
             out[f"a soft roll-off towards full scale, with the nonlinearity of the {other}"] = {

@@ -41,6 +41,7 @@ from bayescal.model.components import (
     effect_terms,
     offset_terms,
 )
+from bayescal.model.components import rolloff as roll
 from bayescal.model.components.dark import DarkTerm
 from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.components.settings import SettingFactorDraws, SettingFactors
@@ -119,7 +120,8 @@ class Calibration:
     factors: tuple[FactorTerm, ...] = ()
     offsets: tuple[OffsetTerm, ...] = ()
     charge_nonlinearity: bool = False  # the nonlinearity is the charge's (before the gain), not the output's
-    rolloff: np.ndarray | None = None  # (S, 2) roll-off knee (DN) and power (Response.compress); None: none
+    rolloff: np.ndarray | None = None  # (S, P) roll-off parameters in DN (model.components.rolloff); None: none
+    rolloff_shape: str = "knee"  # the roll-off's shape (model.components.rolloff.SHAPES)
     #: inversion tables computed from these draws (:mod:`bayescal.prediction.tables`); a cache, not data
     tables: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -215,11 +217,8 @@ class Calibration:
             factors=_factor_terms(spec, draws, frame, flat),
             offsets=offsets,
             charge_nonlinearity=spec.response.nonlinearity_domain == "charge",
-            rolloff=(
-                np.stack([flat(draws["rolloff_knee_dn"]), flat(draws["rolloff_power"])], axis=-1)
-                if "rolloff_knee_dn" in draws
-                else None
-            ),
+            rolloff=_rolloff(draws, flat, spec.full_scale),
+            rolloff_shape=spec.response.rolloff_shape or "knee",
         )
 
     @classmethod
@@ -354,18 +353,18 @@ class Calibration:
         x = np.asarray(x, dtype=float)
         shape = (-1,) + (1,) * (x.ndim - 1)
         x = np.minimum(x, Response.turning_point(coef).reshape(shape))
-        rolloff = (
-            None if self.rolloff is None else (self.rolloff[:, 0].reshape(shape), self.rolloff[:, 1].reshape(shape))
-        )
+        rolloff = None
+        if self.rolloff is not None:  # (S, 1, ..., P): the draws first, the parameters last
+            rolloff = (self.rolloff_shape, self.rolloff.reshape((len(self.rolloff),) + shape[1:] + (-1,)))
         return Response.forward(coef.reshape(shape + coef.shape[1:]), x, rolloff)
 
     def response_signal(self, signal: np.ndarray) -> np.ndarray:
         """The polynomial response's signal behind an output ``signal`` (DN, draws on the last axis):
-        the roll-off undone (:meth:`~bayescal.model.components.response.Response.expand`; ``inf`` past
-        its knee), or ``signal`` itself without one."""
+        the roll-off undone (:func:`~bayescal.model.components.rolloff.expand`; ``inf`` past a knee's
+        asymptote), or ``signal`` itself without one."""
         if self.rolloff is None:
             return signal
-        return Response.expand(signal, self.rolloff[:, 0], self.rolloff[:, 1])
+        return roll.expand(signal, self.rolloff_shape, self.rolloff)
 
     def noise_var(self, signal: np.ndarray, setting: Setting, n_avg: float = 1.0, prnu: float = 0.0) -> np.ndarray:
         """Variance (DN^2) of one reading with ``n_avg`` pixels x frames averaged
@@ -441,6 +440,16 @@ class Calibration:
                     f"{self.calibrated.max_effective:.4g} at the reference setting)"
                 )
         return out
+
+
+def _rolloff(draws: dict, flat, full_scale: float) -> np.ndarray | None:
+    """The roll-off's parameters per draw in DN (:mod:`~bayescal.model.components.rolloff`), or None."""
+    if "rolloff_knee_dn" in draws:
+        return np.stack([flat(draws["rolloff_knee_dn"]), flat(draws["rolloff_power"])], axis=-1)
+    if "rolloff_weights" in draws:
+        weights = flat(draws["rolloff_weights"])
+        return np.concatenate([np.full((weights.shape[0], 1), float(full_scale)), weights], axis=-1)
+    return None
 
 
 def _unit(stimulus: str) -> str:

@@ -133,3 +133,38 @@ def test_a_roll_off_is_absorbed_not_refused():
     assert inv.lower[0] < stimulus < inv.upper[0]
     linear = bc.Calibration(**{f: getattr(cal, f) for f in cal.__dataclass_fields__ if f not in ("tables", "rolloff")})
     assert bc.invert(linear, [dn], "G", setting, noise=False).median[0] < 0.99 * stimulus  # the roll-off undone
+
+
+def test_a_candidate_the_data_cannot_tell_apart_that_moves_a_coefficient_is_reported():
+    """structure_doubt: a passing candidate within 2 se of the spec's elpd that moves a coefficient by more
+    than 2 posterior sd is named, with what it moved; one the data reject, one that fails its checks, or one
+    that moves nothing is not (draws with known means and sds: the z-scores are exact)."""
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from bayescal.fitting.diagnose import DOUBT_Z, Diagnosis, structure_doubt
+
+    rng = np.random.default_rng(3)
+    unit = rng.standard_normal((4000, 2, 2))
+    unit = (unit - unit.mean(axis=0)) / unit.std(axis=0)  # mean 0, sd 1 exactly
+
+    def fake(shift):
+        a = np.zeros((4000, 2, 3))
+        a[..., :2] = unit + shift
+        return SimpleNamespace(
+            posterior=object(), model=SimpleNamespace(layout=SimpleNamespace(channels=("R", "G"))), draws=lambda n: a
+        )
+
+    base = fake(np.zeros((2, 2)))
+    moved = np.zeros((2, 2))
+    moved[1, 0] = DOUBT_Z + 1.0  # G's A0 by 3 sd
+
+    def found(diff, ok, shift):
+        step = pd.DataFrame([{"candidate": "c", "elpd_diff": diff, "dse": 2.0, "fit_ok": ok, "changes": {}}])
+        return Diagnosis((), None, True, [step], trials={"c": (None, fake(shift))})
+
+    assert structure_doubt(base, found(-1.0, True, moved)) == ("c", {"candidate": "c", "moved_sd": {"G A0": 3.0}})
+    assert structure_doubt(base, found(-5.0, True, moved)) is None  # the data prefer the spec by 2.5 se
+    assert structure_doubt(base, found(0.5, False, moved)) is None  # the candidate's own fit fails
+    assert structure_doubt(base, found(0.5, True, moved / 2)) is None  # 1.5 sd: within the intervals

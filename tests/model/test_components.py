@@ -199,21 +199,57 @@ def test_rolloff_compresses_monotonically_and_is_undone():
     import jax.numpy as jnp
 
     from bayescal._config import numerics
-    from bayescal.model.components.response import Response
+    from bayescal.model.components.rolloff import compress, expand
 
+    knee = np.array([6000.0, 4.0])
     s = np.linspace(-50.0, 40_000.0, 4001)
-    out = Response.compress(s, 6000.0, 4.0)
+    out = compress(s, "knee", knee)
     assert np.all(np.diff(out) > 0) and np.all(out < 6000.0)
     assert out[3000] == pytest.approx(s[3000] * (1 + (s[3000] / 6000.0) ** 4) ** -0.25, rel=1e-12)
     assert np.allclose(out[s <= 0], s[s <= 0])
-    assert Response.compress(np.array([100.0]), 6000.0, 4.0)[0] == pytest.approx(100.0, rel=1e-7)  # linear far below
-    np.testing.assert_allclose(Response.expand(out, 6000.0, 4.0), s, rtol=1e-9, atol=1e-9)
-    assert np.isinf(Response.expand(np.array([6000.0, 7000.0]), 6000.0, 4.0)).all()
+    assert compress(np.array([100.0]), "knee", knee)[0] == pytest.approx(100.0, rel=1e-7)  # linear far below
+    np.testing.assert_allclose(expand(out, "knee", knee), s, rtol=1e-9, atol=1e-9)
+    assert np.isinf(expand(np.array([6000.0, 7000.0]), "knee", knee)).all()
     with numerics():
-        f = lambda v: jnp.sum(Response.compress(jnp.array([0.0, 1e-9, 0.5, 30.0]), v[0], v[1], jnp))
+        f = lambda v: jnp.sum(compress(jnp.array([0.0, 1e-9, 0.5, 30.0]), "knee", v, jnp))
         hess = jax.hessian(f)(jnp.array([1.2, 3.0]))
-        grad_s = jax.jacfwd(jax.grad(lambda x: Response.compress(x, 1.2, 3.0, jnp)))(0.0)
+        grad_s = jax.jacfwd(jax.grad(lambda x: compress(x, "knee", jnp.array([1.2, 3.0]), jnp)))(0.0)
     assert np.isfinite(np.asarray(hess)).all() and np.isfinite(float(grad_s))
+
+
+def test_the_monotone_rolloff_draws_other_shapes_and_is_undone():
+    """The monotone shape with only its linear weight is the exponential saturation T (1 - exp(-S / T))
+    (closed form, to the quadrature's accuracy); with any weights it rises everywhere with slope 1 at 0,
+    and expand inverts it, per draw, with the draws on the last axis."""
+    import jax
+    import jax.numpy as jnp
+
+    from bayescal._config import numerics
+    from bayescal.model.components.rolloff import compress, expand, n_params
+
+    full = 4095.0
+    top = 1.3 * full
+    params = np.zeros(n_params("monotone"))
+    params[0], params[1] = full, full / top  # phi(u) = u FS / T
+    s = np.linspace(-20.0, 2.0 * full, 2001)
+    out = compress(s, "monotone", params)
+    expected = np.where(s > 0, top * -np.expm1(-s / top), s)
+    np.testing.assert_allclose(out, expected, rtol=1e-10, atol=1e-8 * full)
+    rng = np.random.default_rng(5)
+    draws = np.concatenate([np.full((50, 1), full), rng.normal(0.0, 1.0, (50, n_params("monotone") - 1))], axis=1)
+    grid = np.linspace(0.0, 1.5 * full, 301)[:, None]  # (V, 1) against 50 draws
+    y = compress(grid, "monotone", draws)
+    assert np.all(np.diff(y, axis=0) > 0)  # rising, whatever the weights' signs
+    np.testing.assert_allclose(
+        expand(y, "monotone", draws), np.broadcast_to(grid, y.shape), rtol=1e-6, atol=1e-6 * full
+    )
+    with numerics():
+        slope0 = jax.grad(lambda x: compress(x, "monotone", jnp.asarray(draws[3]), jnp))(0.0 + 1e-12)
+        hess = jax.hessian(lambda w: jnp.sum(compress(jnp.array([0.0, 10.0, 4000.0]), "monotone", w, jnp)))(
+            jnp.asarray(draws[3])
+        )
+    assert float(slope0) == pytest.approx(1.0, abs=1e-9)
+    assert np.isfinite(np.asarray(hess)).all()
 
 
 def test_every_component_fills_a_place_of_the_equation():

@@ -18,6 +18,7 @@ from typing import Any, Literal
 import numpy as np
 
 from bayescal.model.basis import response_monomials
+from bayescal.model.components import rolloff as roll
 from bayescal.model.components.base import Component
 from bayescal.model.components.priors import guide_inputs, pooled_normal, scale_prior
 
@@ -72,14 +73,18 @@ class ResponseSpec:
 
     ``rolloff`` adds a smooth compression towards full scale that no polynomial of low order
     follows (a sense node or amplifier leaving its linear range, an ADC's top codes):
-    ``S_out = S / (1 + (S / K)^p)^(1/p)`` (:meth:`Response.compress`), the same curve in DN at
+    ``S_out = S / (1 + (S / K)^p)^(1/p)`` (:func:`~bayescal.model.components.rolloff.compress`), the same curve in DN at
     every setting, with the knee ``K`` (DN: the level the output approaches; a signal ``S = K``
     reads ``K / 2^(1/p)``) and the sharpness ``p`` posterior quantities.  Priors: ``K / full scale``
     log-normal with median :data:`ROLLOFF_KNEE_MEDIAN` and log-sd :data:`ROLLOFF_KNEE_LOG_SD`
     (a knee at full scale or above: a camera whose roll-off starts low saturates early, which
-    the window likelihood handles), ``p - 1`` log-normal with median 3 and log-sd 0.6.  Off by
-    default: the misfit diagnosis (:mod:`bayescal.fitting.diagnose`) switches it on when the
-    data ask for it.
+    the window likelihood handles), ``p - 1`` log-normal with median 3 and log-sd 0.6.
+    ``rolloff = "monotone"`` draws any smooth rising shape instead (an exponential saturation, a
+    tanh, a knee of any sharpness: :mod:`~bayescal.model.components.rolloff`), its slope's log
+    changing by weights with Normal(0, :data:`~bayescal.model.components.rolloff.WEIGHT_SD`)
+    priors; ``true`` is ``"knee"``.  Off by
+    default: the misfit diagnosis (:mod:`bayescal.fitting.diagnose`) tries both shapes when the
+    data ask for one.
     """
 
     order: int = 1
@@ -89,7 +94,14 @@ class ResponseSpec:
     gain_prior_log_sd: float = 2.0
     nonlinearity_prior_sd: float = 0.1
     nonlinearity_domain: Literal["output", "charge"] = "output"
-    rolloff: bool = False
+    rolloff: bool | Literal["knee", "monotone"] = False
+
+    @property
+    def rolloff_shape(self) -> str | None:
+        """The roll-off's shape (``"knee"`` or ``"monotone"``), or None without one."""
+        if self.rolloff is False:
+            return None
+        return "knee" if self.rolloff is True else str(self.rolloff)
 
 
 @dataclass(frozen=True)
@@ -112,6 +124,7 @@ class Response(Component):
         "eta_mu_w": ("nl_term",),
         "rolloff_knee": (),
         "rolloff_sharpness": (),
+        "rolloff_weight": ("rolloff_term",),
     }
     reported = {
         "gain": ("channel",),
@@ -121,6 +134,7 @@ class Response(Component):
         "nonlinearity": ("channel", "nl_term"),
         "rolloff_knee_dn": (),
         "rolloff_power": (),
+        "rolloff_weights": ("rolloff_term",),
     }
 
     spec: ResponseSpec
@@ -144,9 +158,10 @@ class Response(Component):
     @staticmethod
     def forward(coef, x, rolloff=None, xp=np):
         """The response's signal at effective stimulus ``x``: the polynomial :meth:`signal`, then the
-        roll-off towards full scale (:meth:`compress`) when ``rolloff = (knee, power)`` is given."""
+        roll-off towards full scale when ``rolloff = (shape, params)`` is given
+        (:func:`~bayescal.model.components.rolloff.compress`)."""
         signal = Response.signal(coef, x, xp)
-        return signal if rolloff is None else Response.compress(signal, *rolloff, xp)
+        return signal if rolloff is None else roll.compress(signal, rolloff[0], rolloff[1], xp)
 
     @staticmethod
     def turning_point(coef: np.ndarray) -> np.ndarray:
@@ -170,24 +185,6 @@ class Response(Component):
         real = np.abs(roots.imag) <= 1e-9 * np.maximum(np.abs(roots.real), 1e-300)
         positive = np.where(real & (roots.real > 0), roots.real, np.inf).min(axis=-1)
         return np.where(ok, positive, turn)
-
-    @staticmethod
-    def compress(signal, knee, power, xp=np):
-        """The roll-off towards full scale: ``S / (1 + (S / K)^p)^(1/p)`` for ``S >= 0`` (``S`` itself
-        below zero); monotone, linear for ``S << K``, approaching ``K`` from below."""
-        positive = signal > 0
-        ratio = xp.where(positive, signal / knee, 1.0)  # both branches finite: the gradients of each stay finite
-        factor = xp.exp(-xp.logaddexp(0.0, power * xp.log(ratio)) / power)  # (1 + ratio^p)^(-1/p), no overflow
-        return signal * xp.where(positive, factor, 1.0)
-
-    @staticmethod
-    def expand(signal, knee, power):
-        """Inverse of :meth:`compress`: ``y / (1 - (y / K)^p)^(1/p)``; ``inf`` at or above the knee
-        (no signal reaches it)."""
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            ratio = np.maximum(signal, 0.0) / knee
-            out = signal / (1.0 - ratio**power) ** (1.0 / power)
-        return np.where(ratio >= 1.0, np.inf, out)
 
     @staticmethod
     def inverse(coef: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -315,23 +312,32 @@ class Response(Component):
                 eta = numpyro.sample("eta", prior)
         return response_monomials(gain, eta, self.spec.order, xp=jnp)[..., 1:]
 
-    def sample_rolloff(self) -> tuple[Any, Any] | None:
-        """The roll-off's knee (fraction of full scale) and sharpness ``p``, or None without one."""
-        if not self.spec.rolloff:
+    def sample_rolloff(self) -> tuple[str, Any] | None:
+        """The roll-off's shape and parameters in the model's units (full scale 1: the knee ``(K, p)``,
+        the monotone shape ``(1, w_0, ..., w_J)``), or None without one."""
+        shape = self.spec.rolloff_shape
+        if shape is None:
             return None
+        import jax.numpy as jnp
         import numpyro
         import numpyro.distributions as dist
 
+        if shape == "monotone":
+            prior = dist.Normal(0.0, roll.WEIGHT_SD).expand([roll.n_params(shape) - 1]).to_event(1)
+            weights = numpyro.sample("rolloff_weight", prior)
+            return shape, jnp.concatenate([jnp.ones(1), weights])
         knee = numpyro.sample("rolloff_knee", dist.LogNormal(float(np.log(ROLLOFF_KNEE_MEDIAN)), ROLLOFF_KNEE_LOG_SD))
         sharpness = numpyro.sample("rolloff_sharpness", dist.LogNormal(float(np.log(3.0)), 0.6))
-        return knee, 1.0 + sharpness
+        return shape, jnp.stack([knee, 1.0 + sharpness])
 
     # ---------------------------------------------------------------- reporting
     def describe(self) -> str:
         out = f"response: order {self.spec.order}"
         if self.n_terms:
             out += f", nonlinearity of the {self.spec.nonlinearity_domain}" + (", pooled" if self.spec.pooled else "")
-        if self.spec.rolloff:
+        if self.spec.rolloff_shape == "monotone":
+            out += ", monotone roll-off towards full scale (any smooth shape)"
+        elif self.spec.rolloff_shape:
             out += ", soft roll-off towards full scale"
         return out
 
@@ -348,4 +354,6 @@ class Response(Component):
         if "rolloff_knee" in draws:
             out["rolloff_knee_dn"] = draws["rolloff_knee"] * layout.dn_scale
             out["rolloff_power"] = 1.0 + draws["rolloff_sharpness"]
+        if "rolloff_weight" in draws:
+            out["rolloff_weights"] = draws["rolloff_weight"]
         return out
