@@ -217,7 +217,7 @@ class Calibration:
             factors=_factor_terms(spec, draws, frame, flat),
             offsets=offsets,
             charge_nonlinearity=spec.response.nonlinearity_domain == "charge",
-            rolloff=_rolloff(draws, flat, spec.full_scale),
+            rolloff=Response.rolloff_params({k: flat(v) for k, v in draws.items() if k.startswith("rolloff_")}, spec),
             rolloff_shape=spec.response.rolloff_shape or "knee",
         )
 
@@ -440,16 +440,6 @@ class Calibration:
                     f"{self.calibrated.max_effective:.4g} at the reference setting)"
                 )
         return out
-
-
-def _rolloff(draws: dict, flat, full_scale: float) -> np.ndarray | None:
-    """The roll-off's parameters per draw in DN (:mod:`~bayescal.model.components.rolloff`), or None."""
-    if "rolloff_knee_dn" in draws:
-        return np.stack([flat(draws["rolloff_knee_dn"]), flat(draws["rolloff_power"])], axis=-1)
-    if "rolloff_weights" in draws:
-        weights = flat(draws["rolloff_weights"])
-        return np.concatenate([np.full((weights.shape[0], 1), float(full_scale)), weights], axis=-1)
-    return None
 
 
 def _unit(stimulus: str) -> str:

@@ -330,6 +330,17 @@ class Response(Component):
         sharpness = numpyro.sample("rolloff_sharpness", dist.LogNormal(float(np.log(3.0)), 0.6))
         return shape, jnp.stack([knee, 1.0 + sharpness])
 
+    @staticmethod
+    def rolloff_params(draws: dict, spec) -> np.ndarray | None:
+        """The roll-off's parameters per draw in DN (:mod:`~bayescal.model.components.rolloff`) from the
+        reported draws (:meth:`physical`, flattened to ``(S, ...)``) of a model ``spec``, or None without one."""
+        if "rolloff_knee_dn" in draws:
+            return np.stack([draws["rolloff_knee_dn"], draws["rolloff_power"]], axis=-1)
+        if "rolloff_weights" in draws:
+            weights = np.asarray(draws["rolloff_weights"], dtype=float)
+            return np.concatenate([np.full((weights.shape[0], 1), float(spec.full_scale)), weights], axis=-1)
+        return None
+
     # ---------------------------------------------------------------- reporting
     def describe(self) -> str:
         out = f"response: order {self.spec.order}"
