@@ -1,5 +1,5 @@
-"""``python -m bayescal``: the ``bayescal`` command."""
+"""``python -m bayescal``: the command-line tool, as the ``bayescal`` command."""
 
-from bayescal.cli import main
+from bayescal.cli.app import main
 
 raise SystemExit(main())
