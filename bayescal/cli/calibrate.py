@@ -66,11 +66,24 @@ def run_fit(
     doubt = result.diagnostics.extra.get("structure")
     if doubt:
         moved = ", ".join(f"{k} by {v:g} sd" for k, v in doubt["moved_sd"].items())
-        print(
-            f"MODEL DOUBT: the data cannot tell the spec from '{doubt['candidate']}', which moves {moved}; "
-            "the posterior below carries both (the candidate nests the spec): measure what tells them apart "
-            "to narrow it\n"
-        )
+        if doubt.get("carried", True):
+            print(
+                f"MODEL DOUBT: the data cannot tell the spec from '{doubt['candidate']}', which moves {moved}; "
+                "the posterior below carries both (the candidate nests the spec): measure what tells them apart "
+                "to narrow it\n"
+            )
+        else:
+            print(
+                f"MODEL DOUBT: '{doubt['candidate']}' predicts the data about as well as the model adopted "
+                f"(elpd_loo {doubt['elpd_diff']:+g} +- {doubt['dse']:g}) and moves {moved}; the intervals below "
+                "are those of the adopted structure alone and do not cover the other: these quantities are "
+                "limited by the structure, not the noise; "
+                + (
+                    "more levels between half and full scale tell roll-off shapes apart\n"
+                    if "roll-off" in doubt["candidate"]
+                    else "measure what tells the two apart\n"
+                )
+            )
     print(result.summary_text())
     if report and result.posterior is not None:
         from bayescal.report.html import write_report

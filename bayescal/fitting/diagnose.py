@@ -80,13 +80,18 @@ def candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
         where = "after the gain" if other == "output" else "in the charge, before the gain"
         out[f"nonlinearity of the {other} ({where})"] = domain
     if not r.rolloff and _reaches(frame, spec, ROLLOFF_REACH):
-        out["a soft roll-off towards full scale (not a polynomial)"] = {"response": {"rolloff": True}}
-        out["a monotone roll-off towards full scale of any smooth shape"] = {"response": {"rolloff": "monotone"}}
+        shapes = {
+            "a soft roll-off towards full scale": True,
+            "a monotone roll-off towards full scale of any smooth shape": "monotone",
+        }
+        for shape, rolloff in shapes.items():
+            out[shape + (" (not a polynomial)" if rolloff is True else "")] = {"response": {"rolloff": rolloff}}
         if domain is not None:  # the domain was decided without a roll-off; with one it may be the other
             other = domain["response"]["nonlinearity_domain"]
-            out[f"a soft roll-off towards full scale, with the nonlinearity of the {other}"] = {
-                "response": {"rolloff": True, "nonlinearity_domain": other}
-            }
+            for shape, rolloff in shapes.items():
+                out[f"{shape}, with the nonlinearity of the {other}"] = {
+                    "response": {"rolloff": rolloff, "nonlinearity_domain": other}
+                }
     if r.order < 4:
         out[f"response order {r.order + 1} (a roll-off near full scale)"] = {"response": {"order": r.order + 1}}
     timed = "time_s" in frame and frame["time_s"].nunique() > 1
@@ -224,6 +229,10 @@ class Diagnosis:
         The Laplace fit of ``spec`` with every check (None when nothing was adopted).
     trials : dict
         When nothing was adopted: the first step's candidates, name -> (spec, Laplace fit).
+    rivals : dict
+        The candidates of the step that adopted the last switch which pass their checks and predict the
+        data about as well as it (elpd_loo within :data:`EVIDENCE_SE` standard errors of their paired
+        difference): name -> (elpd difference, its se, Laplace fit).
     """
 
     adopted: tuple[str, ...]
@@ -232,6 +241,7 @@ class Diagnosis:
     steps: list
     fit: Fit | None = field(default=None, repr=False, compare=False)
     trials: dict = field(default_factory=dict, repr=False, compare=False)
+    rivals: dict = field(default_factory=dict, repr=False, compare=False)
 
     def describe(self) -> str:
         """The diagnosis in words, for the command line."""
@@ -325,13 +335,14 @@ def diagnose(
     else:
         current = _quiet_fit(table, proxy, "laplace", seed)
     current_loo = _loo(current)
-    adopted: list[str] = []
+    adopted: dict[str, dict] = {}  # name -> spec changes, in the order adopted
     steps = []
     trials: dict = {}  # the first step's candidates and their fits
-    for _ in range(MAX_STEPS):
+
+    def step(offers: dict[str, tuple[ModelSpec, dict]]):
+        """Fit every offered (spec, changes), rank it against the model so far; the best when the data tell it."""
         rows, fits = [], {}
-        for name, changes in offered(current_spec, table).items():
-            trial = current_spec.replace(**changes)
+        for name, (trial, changes) in offers.items():
             result = _quiet_fit(
                 table, laplace_proxy(trial).replace(inference={"holdout_check": False}), "laplace", seed
             )
@@ -342,20 +353,72 @@ def diagnose(
             fits[name] = (trial, result, loo)
             rows.append({"candidate": name, "elpd_diff": diff, "dse": se, "fit_ok": result.ok, "changes": changes})
         if not rows:
-            break
-        step = pd.DataFrame(rows).sort_values("elpd_diff", ascending=False).reset_index(drop=True)
-        steps.append(step)
+            return None, fits
+        ranked = pd.DataFrame(rows).sort_values("elpd_diff", ascending=False).reset_index(drop=True)
+        steps.append(ranked)
+        best = ranked.iloc[0]
+        return (str(best.candidate) if best.elpd_diff > EVIDENCE_SE * best.dse else None), fits
+
+    won: tuple[str, dict] = ("", {})  # the last adopting step: its winner and every fit of it
+    rivals: dict = {}
+    for _ in range(MAX_STEPS):
+        offers = offered(current_spec, table)
+        best, fits = step({name: (current_spec.replace(**changes), changes) for name, changes in offers.items()})
         trials = trials or fits
-        best = step.iloc[0]
-        if best.elpd_diff <= EVIDENCE_SE * best.dse:  # nothing adds what the data can tell
+        if best is None:  # nothing adds what the data can tell
             break
-        current_spec, current, current_loo = fits[best.candidate]
-        adopted.append(str(best.candidate))
+        current_spec, current, current_loo = fits[best]
+        adopted[best] = offers[best]
+        won = (best, fits)
+    if len(adopted) > 1:  # each switch was judged without those adopted after it: its alternatives, with them
+        swaps = _swaps(spec, table, adopted, offered)
+        best, fits = step({name: (trial, changes) for name, (_, trial, changes) in swaps.items()})
+        if best is not None:
+            current_spec, current, current_loo = fits[best]
+            replaced, _, changes = swaps[best]
+            adopted = dict((best, changes) if n == replaced else (n, c) for n, c in adopted.items())
+            won = (best, fits)
+        else:  # the alternatives kept out are rivals of the switch they would replace
+            rivals = _rivals(current_loo, fits)
     if not adopted:
         first = {name: (trial, result) for name, (trial, result, _) in trials.items()}
         return Diagnosis((), current_spec, bool(current.ok), steps, trials=first)
     final = _quiet_fit(table, laplace_proxy(current_spec), "laplace", seed)  # the adopted model, every check
-    return Diagnosis(tuple(adopted), current_spec, bool(final.ok), steps, final)
+    rivals |= _rivals(won[1][won[0]][2], won[1], won[0])
+    return Diagnosis(tuple(adopted), current_spec, bool(final.ok), steps, final, rivals=rivals)
+
+
+def _rivals(reference, fits: dict, best: str = "") -> dict:
+    """The fits of one step (but ``best``) that pass their checks and predict the data about as well as the
+    model whose PSIS-LOO is ``reference``: their elpd_loo minus its is above ``-EVIDENCE_SE`` standard errors
+    of that paired difference."""
+    out = {}
+    for name, (_, result, loo) in fits.items():
+        if name == best or not result.ok or result.posterior is None:
+            continue
+        diff, se = _difference(reference, loo)
+        if diff >= -EVIDENCE_SE * se:
+            out[name] = (diff, se, result)
+    return out
+
+
+def _swaps(spec: ModelSpec, table: MeasurementTable, adopted: dict[str, dict], offered) -> dict:
+    """For each adopted switch, its alternatives (the candidates on ``spec`` that set one of the same keys:
+    another roll-off shape, the other domain, another lamp-error size) with every other adopted switch on:
+    name -> (the switch it replaces, the trial spec, its changes)."""
+    keys = {name: {(sec, k) for sec, ks in changes.items() for k in ks} for name, changes in adopted.items()}
+    out: dict = {}
+    for alt, changes in offered(spec, table).items():
+        if alt in adopted:
+            continue
+        own = {(sec, k) for sec, ks in changes.items() for k in ks}
+        for name in adopted:
+            if own & keys[name]:
+                trial = spec
+                for other, c in adopted.items():
+                    trial = trial.replace(**(changes if other == name else c))
+                out[f"{alt} (in place of {name})"] = (name, trial, changes)
+    return out
 
 
 #: the rows a range check refits: illuminated readings below this fraction of full scale (and every dark row)
@@ -486,6 +549,9 @@ def fit_diagnosed(
     diag = final.diagnostics.with_check("diagnosis", [], found.to_dict())
     if found.adopted and final.ok and "order" in found.changes().get("response", {}):
         diag = diag.with_check("range", *range_check(table, found.spec, final, seed))
+    doubt = rival_doubt(final, found) if found.adopted and final.ok else None
+    if doubt is not None:
+        diag = diag.with_check("structure", [], doubt)
     if not found.adopted or not final.ok:
         problem = (
             "nothing in the library explains the data (see diagnosis)"
@@ -542,22 +608,43 @@ def structure_doubt(base: Fit, found: Diagnosis) -> tuple[str, dict] | None:
     limited by the structure.  Returns (name, what moved) or None."""
     if not found.steps or not found.trials or base.posterior is None:
         return None
-    ref = base.draws("A_rel")[..., :2]
-    mean, sd = ref.mean(axis=0), ref.std(axis=0)
-    channels = list(base.model.layout.channels)
     best: tuple[float, str, dict] | None = None
     for r in found.steps[0].itertuples():
         trial = found.trials.get(r.candidate)
         if trial is None or not r.fit_ok or r.elpd_diff < -EVIDENCE_SE * r.dse or trial[1].posterior is None:
             continue
-        other = trial[1].draws("A_rel")[..., :2]
-        z = np.abs(other.mean(axis=0) - mean) / np.maximum(sd, 1e-300)
-        if z.max() > DOUBT_Z and (best is None or z.max() > best[0]):
-            moved = {
-                f"{c} {name}": round(float(z[i, k]), 2)
-                for i, c in enumerate(channels)
-                for k, name in enumerate(("A0", "A1"))
-                if z[i, k] > DOUBT_Z
-            }
-            best = (float(z.max()), str(r.candidate), {"candidate": str(r.candidate), "moved_sd": moved})
+        moved = _moved(base, trial[1])
+        if moved and (best is None or max(moved.values()) > best[0]):
+            info = {"candidate": str(r.candidate), "moved_sd": moved, "carried": True}
+            best = (max(moved.values()), str(r.candidate), info)
     return None if best is None else (best[1], best[2])
+
+
+def _moved(base: Fit, other: Fit) -> dict[str, float]:
+    """The channels' ``A0``/``A1`` (relative to the sphere) whose posterior mean under ``other`` lies more than
+    :data:`DOUBT_Z` of ``base``'s posterior sds from ``base``'s: ``"R A0" -> that distance in sds``."""
+    ref = base.draws("A_rel")[..., :2]
+    mean, sd = ref.mean(axis=0), ref.std(axis=0)
+    z = np.abs(other.draws("A_rel")[..., :2].mean(axis=0) - mean) / np.maximum(sd, 1e-300)
+    return {
+        f"{c} {name}": round(float(z[i, k]), 2)
+        for i, c in enumerate(base.model.layout.channels)
+        for k, name in enumerate(("A0", "A1"))
+        if z[i, k] > DOUBT_Z
+    }
+
+
+def rival_doubt(final: Fit, found: Diagnosis) -> dict | None:
+    """The rival of the adopted model (:attr:`Diagnosis.rivals`) that moves the reported coefficients most,
+    when one moves some by more than :data:`DOUBT_Z` of ``final``'s sds: the quantities the choice of
+    structure limits.  Unlike a screened candidate (:func:`structure_doubt`) a rival does not nest the
+    adopted model, so the posterior reported carries one structure; the doubt is named, not integrated."""
+    if final.posterior is None:
+        return None
+    best: tuple[float, dict] | None = None
+    for name, (diff, se, result) in found.rivals.items():
+        moved = _moved(final, result)
+        if moved and (best is None or max(moved.values()) > best[0]):
+            info = {"candidate": name, "moved_sd": moved, "elpd_diff": round(diff, 1), "dse": round(se, 1)}
+            best = (max(moved.values()), info | {"carried": False})
+    return None if best is None else best[1]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import bayescal as bc
-from bayescal.fitting.diagnose import candidates
+from bayescal.fitting.diagnose import _swaps, candidates
 from bayescal.model.components.glow import Glow
 from bayescal.model.components.sphere import fold_common_scale
 from bayescal.validation import BenchCamera, Departures, simulate_bench, with_held_out
@@ -40,6 +40,7 @@ def test_candidates_are_the_switches_the_table_can_inform():
     assert any("response order 3" in n for n in names)
     assert "a soft roll-off towards full scale (not a polynomial)" in names  # readings reach 60 % of full scale
     assert "a soft roll-off towards full scale, with the nonlinearity of the output" in names
+    assert "a monotone roll-off towards full scale of any smooth shape, with the nonlinearity of the output" in names
     assert not any("sensor temperature" in n for n in names)  # one temperature: nothing to inform it
     thermal, _ = _table(Departures(), 1, temperatures=(10.0, 30.0))
     assert "an offset that drifts with the sensor temperature (per channel)" in candidates(spec, thermal)
@@ -47,6 +48,28 @@ def test_candidates_are_the_switches_the_table_can_inform():
     frame, _ = simulate_bench(BenchCamera(), Departures(), seed=1)
     one_gain = bc.MeasurementTable.from_frame(frame[frame.gain == 1.0].reset_index(drop=True))
     assert not any("nonlinearity" in n for n in candidates(spec, one_gain))
+
+
+def test_an_adopted_switch_meets_its_alternatives_with_the_others_on():
+    """A roll-off shape chosen before the glow was on is judged again with the glow on: each alternative (the
+    other shapes, the other domain) replaces it while the glow stays; a switch with no alternative is kept."""
+    spec = bc.load_spec(SPEC)
+    table, _ = _table(Departures(), 1)
+    offered = candidates(spec, table)
+    soft = "a soft roll-off towards full scale (not a polynomial)"
+    glow = next(n for n in offered if "glow" in n)
+    swaps = _swaps(spec, table, {soft: offered[soft], glow: offered[glow]}, candidates)
+    replaced = {name.split(" (in place of ")[0]: old for name, (old, _, _) in swaps.items()}
+    assert replaced["a monotone roll-off towards full scale of any smooth shape"] == soft
+    assert (
+        replaced["a monotone roll-off towards full scale of any smooth shape, with the nonlinearity of the output"]
+        == soft
+    )
+    assert "nonlinearity of the output (after the gain)" not in replaced  # it sets no key the soft roll-off sets
+    assert glow not in replaced.values()  # nothing else sets the glow's keys
+    for _, trial, changes in swaps.values():
+        assert trial.effect("glow").enabled is True
+        assert trial.response.rolloff == changes["response"]["rolloff"]
 
 
 def test_a_dark_drift_without_times_is_named_not_blamed_on_something_else():
@@ -143,7 +166,7 @@ def test_a_candidate_the_data_cannot_tell_apart_that_moves_a_coefficient_is_repo
 
     import pandas as pd
 
-    from bayescal.fitting.diagnose import DOUBT_Z, Diagnosis, structure_doubt
+    from bayescal.fitting.diagnose import DOUBT_Z, Diagnosis, rival_doubt, structure_doubt
 
     rng = np.random.default_rng(3)
     unit = rng.standard_normal((4000, 2, 2))
@@ -164,7 +187,42 @@ def test_a_candidate_the_data_cannot_tell_apart_that_moves_a_coefficient_is_repo
         step = pd.DataFrame([{"candidate": "c", "elpd_diff": diff, "dse": 2.0, "fit_ok": ok, "changes": {}}])
         return Diagnosis((), None, True, [step], trials={"c": (None, fake(shift))})
 
-    assert structure_doubt(base, found(-1.0, True, moved)) == ("c", {"candidate": "c", "moved_sd": {"G A0": 3.0}})
+    expected = {"candidate": "c", "moved_sd": {"G A0": 3.0}, "carried": True}
+    assert structure_doubt(base, found(-1.0, True, moved)) == ("c", expected)
     assert structure_doubt(base, found(-5.0, True, moved)) is None  # the data prefer the spec by 2.5 se
     assert structure_doubt(base, found(0.5, False, moved)) is None  # the candidate's own fit fails
     assert structure_doubt(base, found(0.5, True, moved / 2)) is None  # 1.5 sd: within the intervals
+
+    # a rival of an adopted model (it does not nest it): named, and said not to be carried by the intervals
+    rivals = Diagnosis(("a",), None, True, [], rivals={"r": (-1.0, 2.0, fake(moved)), "s": (0.5, 1.0, fake(moved / 2))})
+    assert rival_doubt(base, rivals) == {
+        "candidate": "r",
+        "moved_sd": {"G A0": 3.0},
+        "elpd_diff": -1.0,
+        "dse": 2.0,
+        "carried": False,
+    }
+    assert rival_doubt(base, Diagnosis(("a",), None, True, [], rivals={"s": (0.5, 1.0, fake(moved / 2))})) is None
+
+
+def test_rivals_are_the_passing_fits_the_data_cannot_tell_from_the_winner():
+    """_rivals: elpd_loo differences paired over the same rows; a fit within 2 se of the winner's that passes is
+    a rival; one 3 se below, or one that fails its checks, is not (pointwise elpds with exact sums and sds)."""
+    from types import SimpleNamespace
+
+    from bayescal.fitting.diagnose import _rivals
+
+    n = 100
+    noise = np.tile([1.0, -1.0], n // 2)  # mean 0, sd 1: the paired difference's se is sqrt(n) * sd
+    winner = SimpleNamespace(elpd_i=np.zeros(n))
+
+    def entry(shift_se, ok=True):
+        loo = SimpleNamespace(elpd_i=noise + shift_se * np.sqrt(n) / n)  # sum = shift_se * se
+        return (None, SimpleNamespace(ok=ok, posterior=object()), loo)
+
+    fits = {"w": (None, SimpleNamespace(ok=True, posterior=object()), winner), "near": entry(-1.5), "far": entry(-3.0)}
+    fits["failing"] = entry(0.5, ok=False)
+    found = _rivals(winner, fits, "w")
+    assert set(found) == {"near"}
+    diff, se, _ = found["near"]
+    assert diff == pytest.approx(-1.5 * np.sqrt(n)) and se == pytest.approx(np.sqrt(n))

@@ -10,12 +10,23 @@ temperature) and where it acts:
 - **added to every reading** (``[offset_drift]``, an offset): the black level or the dark signal
   moves by the same DN in every channel, ``DN -> DN + d(tau)``.
 
-Neither has a fixed shape: each is a smooth function of the covariate scaled to the session,
-``tau = (c - c_min) / (c_max - c_min)``, drawn from a cosine basis with coefficients whose prior sd
-falls as ``1 / k`` (a low-rank smooth process; a straight line, a warm-up that settles and a sag and
-recovery are all in it)::
+Neither has a fixed shape: each is a Gaussian process over the covariate scaled to the session,
+``tau = (c - c_min) / (c_max - c_min)``, with a Matern-3/2 kernel (a warm-up that settles quickly has
+a kink a smoother kernel does not reach) of a short length scale, in its Hilbert-space form (Solin &
+Sarkka 2020; Riutort-Mayol et al. 2023): sines of a box twice the session's length around it, with
+non-centred coefficients whose sds follow the kernel's spectral density::
 
-    h(tau) = sum_k beta_k (cos(k pi tau) - cos(k pi tau_ref)),   beta_k ~ Normal(0, s / k)
+    h(tau) = sum_k s sqrt(S(w_k; l) / L) z_k (phi_k(tau) - phi_k(tau_ref)),   z_k ~ Normal(0, 1)
+    phi_k(tau) = sin(w_k (tau - 1/2 + L)),   w_k = k pi / (2 L),   L = 1
+    S(w; l) = 12 sqrt(3) / l^3 (3 / l^2 + w^2)^-2,   l = 0.1
+
+``s`` is the drift's prior scale (its sd over the session).  The length scale is fixed, not fitted: the
+curve is then linear in its coefficients and the Laplace approximation exact for it, where a fitted
+length scale put 98 % of the Laplace draws outside the Gaussian it assumes.  A line, a sag and a warm-up
+over the session's first tenth all lie within the process; the sines' box, twice the session, keeps a
+transient at the session's edge as reachable as one in its middle (with eight cosines of the
+session's own length, the best fit to an exponential warm-up of time constant 0.3 left 65 times the
+residual).
 
 ``tau_ref`` is where the drift is zero, the state the calibration refers to: over time or the rows'
 order, the lamp settled at the session's end and the sensor at its start (as a linear dark drift,
@@ -44,6 +55,7 @@ __all__ = [
     "OffsetDriftSpec",
     "DriftTerm",
     "basis",
+    "spectral_sd",
     "session_coordinate",
     "COVARIATES",
 ]
@@ -56,11 +68,32 @@ COVARIATES = {
 }
 
 
+#: half-width of the box the basis lives on, around the session scaled to [-1/2, 1/2] (the Hilbert-space
+#: approximation's boundary factor 2: the box is twice the session)
+HALF_WIDTH = 1.0
+#: the most basis functions a drift may have
+MAX_TERMS = 32
+
+
 def basis(tau, terms: int, tau_ref: float, xp=np):
-    """The smooth basis ``cos(k pi tau) - cos(k pi tau_ref)``, ``k = 1..terms``, shape ``tau.shape + (terms,)``:
-    zero at ``tau_ref``, written against the array namespace ``xp``."""
-    k = xp.arange(1, terms + 1)
-    return xp.cos(np.pi * k * tau[..., None]) - xp.cos(np.pi * k * tau_ref)
+    """The sines ``phi_k(tau) - phi_k(tau_ref)``, ``k = 1..terms``, shape ``tau.shape + (terms,)``: zero at
+    ``tau_ref``, written against the array namespace ``xp``."""
+    w = frequencies(terms)
+    return xp.sin(w * (tau[..., None] - 0.5 + HALF_WIDTH)) - xp.sin(w * (tau_ref - 0.5 + HALF_WIDTH))
+
+
+def frequencies(terms: int) -> np.ndarray:
+    """The basis's angular frequencies ``w_k = k pi / (2 L)`` (per unit of the session)."""
+    return np.pi * np.arange(1, terms + 1) / (2.0 * HALF_WIDTH)
+
+
+def spectral_sd(lengthscale, terms: int, xp=np):
+    """The sd of each basis coefficient for a unit-variance Matern-3/2 process of length scale
+    ``lengthscale`` (any leading shape): ``sqrt(S(w_k) / L)``, shape ``lengthscale.shape + (terms,)``."""
+    w2 = frequencies(terms) ** 2
+    ell = lengthscale[..., None]
+    density = 12.0 * np.sqrt(3.0) / ell**3 / (3.0 / ell**2 + w2) ** 2
+    return xp.sqrt(density / HALF_WIDTH)
 
 
 def session_coordinate(frame, over: str) -> np.ndarray:
@@ -78,16 +111,19 @@ class DriftSpec:
 
     ``enabled``: fit it (``"auto"``: when the table records the covariate at two or more values).
     ``over``: ``"time_s"``, ``"order"`` (the rows as listed are the order of measurement) or
-    ``"temperature_c"``.  ``terms``: basis functions (1: a straight line's smooth cousin; 3: a warm-up
-    that settles, a sag and recovery).  ``prior_scale``: prior sd of the first coefficient, a fraction
-    of the stimulus (``[stimulus_drift]``, default 0.03) or DN (``[offset_drift]``, default 5).
+    ``"temperature_c"``.  ``terms``: basis functions (12 reach a warm-up over the first tenth of the
+    session; fewer, smoother curves only).  ``prior_scale``: the drift's prior sd over the session, a
+    fraction of the stimulus (``[stimulus_drift]``, default 0.03) or DN (``[offset_drift]``, default 5).
+    ``lengthscale``: the process's length scale, a fraction of the covariate's range (0.1: a warm-up over
+    the session's first tenth is within reach; a line or a sag needs no more).
     ``reference_c``: for a drift over temperature, the temperature the calibration refers to.
     """
 
     enabled: Literal[True, False, "auto"] = False
     over: Literal["time_s", "order", "temperature_c"] = "time_s"
-    terms: int = 3
+    terms: int = 12
     prior_scale: float = 0.0  # 0: the effect's own default
+    lengthscale: float = 0.1
     reference_c: float = 20.0
 
     def __post_init__(self) -> None:
@@ -95,8 +131,10 @@ class DriftSpec:
             raise SpecError(f'drift enabled = {self.enabled!r}; expected true, false or "auto"')
         if self.over not in COVARIATES:
             raise SpecError(f"drift over = {self.over!r}; expected one of {sorted(COVARIATES)}")
-        if not 1 <= self.terms <= 8:
-            raise SpecError(f"drift terms = {self.terms}; expected 1..8 basis functions")
+        if not 1 <= self.terms <= MAX_TERMS:
+            raise SpecError(f"drift terms = {self.terms}; expected 1..{MAX_TERMS} basis functions")
+        if not 0.02 <= self.lengthscale <= 10.0:
+            raise SpecError(f"drift lengthscale = {self.lengthscale}; expected 0.02..10 (a fraction of the range)")
         if not self.prior_scale >= 0:
             raise SpecError("drift prior_scale must be >= 0 (0: the effect's default)")
 
@@ -126,6 +164,10 @@ class _Drift(Effect):
     @property
     def site(self) -> str:
         return f"{self.section}_coef"
+
+    @property
+    def z_site(self) -> str:
+        return f"{self.section}_z"
 
     @property
     def input(self) -> str:
@@ -170,16 +212,21 @@ class _Drift(Effect):
         return {self.input: session_coordinate(frame, self.spec.over)}
 
     def curve(self, data, xp):
-        """The drift ``sum_k beta_k phi_k(tau)`` of every row (sampling its coefficients)."""
+        """The drift of every row (sampling its standardised coefficients)."""
         import numpyro
         import numpyro.distributions as dist
 
-        k = np.arange(1, self.spec.terms + 1)
-        beta = numpyro.sample(self.site, dist.Normal(0.0, self.scale / k).to_event(1))
-        return basis(data.extra[self.input], self.spec.terms, self.tau_ref, xp) @ beta
+        z = numpyro.sample(self.z_site, dist.Normal(0.0, 1.0).expand([self.spec.terms]).to_event(1))
+        return basis(data.extra[self.input], self.spec.terms, self.tau_ref, xp) @ (self.coef_sd * z)
+
+    @property
+    def coef_sd(self) -> np.ndarray:
+        """The prior sd of each basis coefficient, in the spec's unit."""
+        return self.scale * spectral_sd(np.asarray(self.spec.lengthscale), self.spec.terms)
 
     def physical(self, draws, ctx) -> dict[str, np.ndarray]:
-        return {self.site: draws[self.site]}
+        """The basis coefficients, in the spec's unit."""
+        return {self.site: self.coef_sd * np.asarray(draws[self.z_site], dtype=float)}
 
     def coords(self) -> dict[str, list]:
         return {f"{self.section}_term": list(range(1, self.spec.terms + 1))}
@@ -202,7 +249,7 @@ class _Drift(Effect):
 
 @dataclass(frozen=True)
 class StimulusDriftSpec(DriftSpec):
-    """``[stimulus_drift]``: as :class:`DriftSpec`, with five terms.  A lamp that warms up or settles during
+    """``[stimulus_drift]``: as :class:`DriftSpec`.  A lamp that warms up or settles during
     a session whose settings are measured one block after another is absorbed by the settings' effective
     factors and passes every check of the residuals while the coefficients relative to the sphere miss their
     truth.  The data can rarely tell the two structures apart, so the screen of a fit that passes
@@ -211,7 +258,6 @@ class StimulusDriftSpec(DriftSpec):
     middle and the end of the session measures the drift and narrows them."""
 
     enabled: Literal[True, False, "auto"] = False
-    terms: int = 5
 
 
 @dataclass(frozen=True)
@@ -220,7 +266,7 @@ class StimulusDrift(_Drift):
 
     section = "stimulus_drift"
     spec_class = StimulusDriftSpec
-    sites = {"stimulus_drift_coef": ("stimulus_drift_term",)}
+    sites = {"stimulus_drift_z": ("stimulus_drift_term",)}
     reported = {"stimulus_drift_coef": ("stimulus_drift_term",)}
     default_scale = 0.03
     unit = "(fraction of the stimulus)"
@@ -259,7 +305,7 @@ class OffsetDrift(_Drift):
     section = "offset_drift"
     spec_class = OffsetDriftSpec
     role = "offset"
-    sites = {"offset_drift_coef": ("offset_drift_term",)}
+    sites = {"offset_drift_z": ("offset_drift_term",)}
     reported = {"offset_drift_coef": ("offset_drift_term",)}
     default_scale = 5.0
     unit = "DN"
