@@ -66,7 +66,14 @@ def run_fit(
     doubt = result.diagnostics.extra.get("structure")
     if doubt:
         moved = ", ".join(f"{k} by {v:g} sd" for k, v in doubt["moved_sd"].items())
-        if doubt.get("carried", True):
+        if doubt.get("reported"):
+            print(
+                f"MODEL DOUBT: '{doubt['candidate']}' predicts the data about as well as '{doubt['reported']}' "
+                f"(elpd_loo {doubt['elpd_diff']:+g} +- {doubt['dse']:g}) and moves {moved}; the posterior below is "
+                "the flexible shape's, which draws the other too: more levels between half and full scale tell "
+                "the shapes apart and narrow it\n"
+            )
+        elif doubt.get("carried", True):
             print(
                 f"MODEL DOUBT: the data cannot tell the spec from '{doubt['candidate']}', which moves {moved}; "
                 "the posterior below carries both (the candidate nests the spec): measure what tells them apart "

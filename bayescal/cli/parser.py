@@ -110,7 +110,7 @@ def _maps(sub) -> None:
     )
     mp.add_argument(
         "stacks",
-        help="directory with conditions.csv and one .npy/.tif/.raw file per stack, or an EMVA 1288 image set: "
+        help="directory with conditions.csv and one .npy/.tif/.fits/.raw file per stack, or an EMVA 1288 image set: "
         "its descriptor (.txt, images beside it; exposure or illumination sweep) or cropped arrays (.npz)",
     )
     mp.add_argument("--out", required=True, help="output directory (holds maps.zarr, or maps.nc with --netcdf)")

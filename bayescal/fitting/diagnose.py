@@ -233,6 +233,10 @@ class Diagnosis:
         The candidates of the step that adopted the last switch which pass their checks and predict the
         data about as well as it (elpd_loo within :data:`EVIDENCE_SE` standard errors of their paired
         difference): name -> (elpd difference, its se, Laplace fit).
+    preferred : dict
+        When a rival draws the adopted structure and more (:func:`_more_flexible`) it is adopted in its
+        place: ``{"candidate": its name, "over": the switch it replaced, "elpd_diff", "dse"}``; the rigid
+        one is then among the rivals.
     """
 
     adopted: tuple[str, ...]
@@ -242,6 +246,7 @@ class Diagnosis:
     fit: Fit | None = field(default=None, repr=False, compare=False)
     trials: dict = field(default_factory=dict, repr=False, compare=False)
     rivals: dict = field(default_factory=dict, repr=False, compare=False)
+    preferred: dict = field(default_factory=dict, repr=False, compare=False)
 
     def describe(self) -> str:
         """The diagnosis in words, for the command line."""
@@ -338,6 +343,7 @@ def diagnose(
     adopted: dict[str, dict] = {}  # name -> spec changes, in the order adopted
     steps = []
     trials: dict = {}  # the first step's candidates and their fits
+    specs: dict[str, ModelSpec] = {}  # every candidate fitted: its spec
 
     def step(offers: dict[str, tuple[ModelSpec, dict]]):
         """Fit every offered (spec, changes), rank it against the model so far; the best when the data tell it."""
@@ -351,6 +357,7 @@ def diagnose(
             loo = _loo(result)
             diff, se = _difference(current_loo, loo)
             fits[name] = (trial, result, loo)
+            specs[name] = trial
             rows.append({"candidate": name, "elpd_diff": diff, "dse": se, "fit_ok": result.ok, "changes": changes})
         if not rows:
             return None, fits
@@ -361,6 +368,7 @@ def diagnose(
 
     won: tuple[str, dict] = ("", {})  # the last adopting step: its winner and every fit of it
     rivals: dict = {}
+    replaces: dict[str, tuple[str, dict]] = {}  # a rival -> the adopted switch it would replace, its changes
     for _ in range(MAX_STEPS):
         offers = offered(current_spec, table)
         best, fits = step({name: (current_spec.replace(**changes), changes) for name, changes in offers.items()})
@@ -370,6 +378,7 @@ def diagnose(
         current_spec, current, current_loo = fits[best]
         adopted[best] = offers[best]
         won = (best, fits)
+        replaces = {name: (best, offers[name]) for name in fits if name != best}
     if len(adopted) > 1:  # each switch was judged without those adopted after it: its alternatives, with them
         swaps = _swaps(spec, table, adopted, offered)
         best, fits = step({name: (trial, changes) for name, (_, trial, changes) in swaps.items()})
@@ -377,15 +386,35 @@ def diagnose(
             current_spec, current, current_loo = fits[best]
             replaced, _, changes = swaps[best]
             adopted = dict((best, changes) if n == replaced else (n, c) for n, c in adopted.items())
-            won = (best, fits)
+            won = (best, {n: f for n, f in fits.items() if swaps[n][0] == replaced})  # those in the same place
+            replaces = {name: (best, swaps[name][2]) for name in won[1] if name != best}
         else:  # the alternatives kept out are rivals of the switch they would replace
             rivals = _rivals(current_loo, fits)
+            replaces |= {name: (swaps[name][0], swaps[name][2]) for name in fits}
     if not adopted:
         first = {name: (trial, result) for name, (trial, result, _) in trials.items()}
         return Diagnosis((), current_spec, bool(current.ok), steps, trials=first)
+    if won[0] in won[1]:
+        rivals |= _rivals(won[1][won[0]][2], won[1], won[0])
+    preferred: dict = {}
+    flexible = next((n for n in rivals if _more_flexible(specs[n], current_spec)), None)
+    if flexible is not None:  # the data cannot tell a rigid shape from a flexible one: report the flexible one
+        diff, se, result = rivals.pop(flexible)
+        replaced, changes = replaces[flexible]
+        preferred = {"candidate": flexible, "over": replaced, "elpd_diff": round(diff, 1), "dse": round(se, 1)}
+        rivals[replaced] = (-diff, se, current)  # the rigid shape is now the flexible one's rival
+        adopted = dict((flexible, changes) if n == replaced else (n, c) for n, c in adopted.items())
+        current_spec = specs[flexible]
     final = _quiet_fit(table, laplace_proxy(current_spec), "laplace", seed)  # the adopted model, every check
-    rivals |= _rivals(won[1][won[0]][2], won[1], won[0])
-    return Diagnosis(tuple(adopted), current_spec, bool(final.ok), steps, final, rivals=rivals)
+    return Diagnosis(tuple(adopted), current_spec, bool(final.ok), steps, final, rivals=rivals, preferred=preferred)
+
+
+def _more_flexible(rival: ModelSpec, adopted: ModelSpec) -> bool:
+    """``rival`` draws ``adopted``'s structure and more: the monotone roll-off of any smooth shape where
+    ``adopted`` has the knee family (the monotone slope's hinges draw a knee; on an exponential or tanh
+    saturation the knee, preferred by elpd within its se, left ``A0`` 3-14 sd off where the monotone
+    shape covered)."""
+    return rival.response.rolloff == "monotone" and adopted.response.rolloff is True
 
 
 def _rivals(reference, fits: dict, best: str = "") -> dict:
@@ -638,7 +667,9 @@ def rival_doubt(final: Fit, found: Diagnosis) -> dict | None:
     """The rival of the adopted model (:attr:`Diagnosis.rivals`) that moves the reported coefficients most,
     when one moves some by more than :data:`DOUBT_Z` of ``final``'s sds: the quantities the choice of
     structure limits.  Unlike a screened candidate (:func:`structure_doubt`) a rival does not nest the
-    adopted model, so the posterior reported carries one structure; the doubt is named, not integrated."""
+    adopted model, so the posterior reported carries one structure and the doubt is named, not integrated;
+    except where the adopted model is the flexible one preferred to a rigid rival (:attr:`Diagnosis.preferred`):
+    its posterior draws the rival's shape too, and the doubt is carried."""
     if final.posterior is None:
         return None
     best: tuple[float, dict] | None = None
@@ -646,5 +677,9 @@ def rival_doubt(final: Fit, found: Diagnosis) -> dict | None:
         moved = _moved(final, result)
         if moved and (best is None or max(moved.values()) > best[0]):
             info = {"candidate": name, "moved_sd": moved, "elpd_diff": round(diff, 1), "dse": round(se, 1)}
-            best = (max(moved.values()), info | {"carried": False})
+            if name == found.preferred.get("over"):  # the flexible shape reported draws this one too
+                info |= {"carried": True, "reported": found.preferred["candidate"]}
+            else:
+                info |= {"carried": False}
+            best = (max(moved.values()), info)
     return None if best is None else best[1]

@@ -161,7 +161,7 @@ def _jsonable(obj: Any) -> Any:
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Read a TIFF, PNG or NPY image as a 2-D (mosaic or mono) or 3-D (H, W, C) array.
+    """Read a TIFF, PNG, NPY or FITS image as a 2-D (mosaic or mono) or 3-D (H, W, C) array.
 
     A missing, empty, truncated or mislabelled file raises :class:`~bayescal.errors.TableError`
     naming the file and what it holds, never the decoder's own exception.
@@ -175,7 +175,7 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     if not path.exists():
         raise FileNotFoundError(f"no such image: {path}")
     if suffix not in _IMAGE_SUFFIXES:
-        raise TableError(f"{path}: unsupported image type '{suffix}'; expected .tif, .tiff, .png or .npy")
+        raise TableError(f"{path}: unsupported image type '{suffix}'; expected {', '.join(_IMAGE_SUFFIXES)}")
     if path.is_dir():
         raise TableError(f"{path} is a folder; expected an image file")
     if path.stat().st_size == 0:
@@ -195,7 +195,15 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 
 
 #: image files by suffix, and what each holds (for messages)
-_IMAGE_SUFFIXES = {".tif": "TIFF", ".tiff": "TIFF", ".png": "PNG", ".npy": "NumPy (.npy)"}
+_IMAGE_SUFFIXES = {
+    ".tif": "TIFF",
+    ".tiff": "TIFF",
+    ".png": "PNG",
+    ".npy": "NumPy (.npy)",
+    ".fits": "FITS",
+    ".fit": "FITS",
+    ".fts": "FITS",
+}
 
 
 def _decode(path: Path, suffix: str) -> np.ndarray:
@@ -207,6 +215,11 @@ def _decode(path: Path, suffix: str) -> np.ndarray:
         import tifffile
 
         return np.asarray(tifffile.imread(path))
+    if _IMAGE_SUFFIXES[suffix] == "FITS":
+        from bayescal.io.fits import read_fits_image
+
+        image = read_fits_image(path)[0]
+        return np.moveaxis(image, 0, -1) if image.ndim == 3 else image  # FITS planes first: (H, W, C)
     if suffix == ".png":
         from PIL import Image
 

@@ -40,6 +40,7 @@ import numpy as np
 import pandas as pd
 
 from bayescal.errors import TableError
+from bayescal.io.fits import FITS_SUFFIXES, fits_layout
 
 __all__ = [
     "Manifest",
@@ -68,6 +69,7 @@ class LazyStack:
     dtype: np.dtype
     format: str
     offset: int = 0
+    flip: int = 0  # unsigned pixels stored signed (FITS BZERO): the bit to flip after reading
 
     @property
     def ndim(self) -> int:
@@ -77,7 +79,8 @@ class LazyStack:
         return np.memmap(self.path, dtype=self.dtype, mode="r", offset=self.offset, shape=self.shape)
 
     def __getitem__(self, index) -> np.ndarray:
-        return np.asarray(self._map()[index])
+        out = np.asarray(self._map()[index])
+        return out ^ out.dtype.type(self.flip) if self.flip else out
 
     def read_rows(self, r0: int, r1: int, out: np.ndarray | None = None) -> np.ndarray:
         """Rows ``r0:r1`` of every frame, ``(frames, r1 - r0, W)`` in native byte order, read with one
@@ -99,6 +102,8 @@ class LazyStack:
                     raise TableError(f"{self.path}: the file ends inside frame {f} (truncated?)")
         if not self.dtype.isnative:  # the file's bytes are in the other order: swap them where they lie
             out.byteswap(inplace=True)
+        if self.flip:  # unsigned pixels stored signed: flip the sign bit where they lie
+            out ^= out.dtype.type(self.flip)
         if out.dtype.kind == "f" and not np.isfinite(out).all():  # a float stack: NaN or inf breaks every fit
             f, r, c = (int(i) for i in np.argwhere(~np.isfinite(out))[0])
             raise TableError(
@@ -152,8 +157,11 @@ def _open_one(path: Path, row: pd.Series, where: str) -> LazyStack:
                     f"{where}: {path.name} has {size} bytes, not a whole number of {h} x {w} uint16 frames"
                 )
             stack = LazyStack(str(path), (size // frame, h, w), np.dtype("<u2"), "raw")
+        elif suffix in FITS_SUFFIXES:
+            layout = fits_layout(path)
+            stack = LazyStack(str(path), layout.shape, layout.dtype, "fits", layout.offset, layout.flip)
         else:
-            raise TableError(f"{where}: {path.name}: expected a .npy, .tif or .raw stack")
+            raise TableError(f"{where}: {path.name}: expected a .npy, .tif, .fits or .raw stack")
     except (OSError, ValueError) as exc:
         raise TableError(f"{where}: cannot read stack {path.name} ({exc})") from None
     if not np.issubdtype(stack.dtype, np.integer) and not np.issubdtype(stack.dtype, np.floating):

@@ -72,6 +72,7 @@ def test_an_adopted_switch_meets_its_alternatives_with_the_others_on():
         assert trial.response.rolloff == changes["response"]["rolloff"]
 
 
+@pytest.mark.slow  # the whole diagnosis, every candidate in three steps (about two minutes)
 def test_a_dark_drift_without_times_is_named_not_blamed_on_something_else():
     """The dark level drifts 3 DN over a run whose table has no time_s: the spec's fit fails its checks;
     the diagnosis adopts the drift over the rows' order, which passes every check, and the offsets A0
@@ -226,3 +227,28 @@ def test_rivals_are_the_passing_fits_the_data_cannot_tell_from_the_winner():
     assert set(found) == {"near"}
     diff, se, _ = found["near"]
     assert diff == pytest.approx(-1.5 * np.sqrt(n)) and se == pytest.approx(np.sqrt(n))
+
+
+@pytest.mark.slow  # the whole diagnosis on a camera nobody described (about three minutes)
+def test_a_rigid_roll_off_the_data_cannot_tell_from_the_flexible_one_gives_way_to_it():
+    """A tanh roll-off from the independent simulator of cameras nobody described (its seed 24: darks at the
+    session's end too): the knee family and the monotone shape both pass and predict the data within 2 se;
+    the knee left A0 about 3 sd off in every channel.  The monotone shape is reported, the knee named as the
+    rival whose doubt the reported posterior carries, and A0 and A1 of every channel cover the truth."""
+    from bayescal.validation.wild import simulate_wild
+
+    frame, session = simulate_wild(24)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result, found = bc.fit_diagnosed(bc.MeasurementTable.from_frame(frame), bc.load_spec(SPEC), "laplace", seed=24)
+    assert result.ok and found is not None
+    assert found.spec.response.rolloff == "monotone", found.describe()
+    assert found.preferred["over"].startswith("a soft roll-off"), found.preferred
+    structure = result.diagnostics.extra["structure"]
+    assert structure["carried"] and structure["reported"] == found.preferred["candidate"]
+    truth = session.truth().set_index("channel")
+    rel = result.draws("A_rel")[..., :2]
+    for c, channel in enumerate(result.model.layout.channels):
+        for k, name in enumerate(("A0", "A1")):
+            lo, hi = np.quantile(rel[:, c, k], [0.025, 0.975])
+            assert lo <= truth.loc[channel, name] <= hi, (channel, name)
