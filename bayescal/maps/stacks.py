@@ -222,6 +222,7 @@ def load_manifest(directory: str | os.PathLike, *, source: str = "") -> Manifest
         raise TableError(f"{path}: missing column(s) {', '.join(missing)}; expected {', '.join(_REQUIRED)}")
     if table.empty:
         raise TableError(f"{path}: no stacks listed")
+    table = _settings_from_headers(table, directory)
     if "gain" not in table.columns:
         table["gain"] = 1.0
     if "temperature_c" not in table.columns:
@@ -290,6 +291,27 @@ def load_manifest(directory: str | os.PathLike, *, source: str = "") -> Manifest
                 f"the first stack has {shape[0]} x {shape[1]} (all frames must share one shape)"
             )
     return Manifest(directory, table.reset_index(drop=True), stacks, source)
+
+
+def _settings_from_headers(table: pd.DataFrame, directory: Path) -> pd.DataFrame:
+    """Empty ``exposure_s`` cells of FITS stacks filled from their headers (``EXPTIME``...), and a
+    ``temperature_c`` column added when the manifest has none and every stack's header records one
+    (``CCD-TEMP``...).  A cell the manifest fills is never replaced."""
+    is_fits = table["file"].astype(str).str.lower().str.endswith(FITS_SUFFIXES)
+    if not is_fits.any():
+        return table
+    table = table.copy()
+    table["exposure_s"] = table["exposure_s"].astype(object)
+    temperatures = []
+    for i in table.index:
+        file = directory / str(table.at[i, "file"])
+        settings = fits_layout(file).settings if is_fits[i] and file.is_file() else {}
+        if pd.isna(table.at[i, "exposure_s"]) and "exposure_s" in settings:
+            table.at[i, "exposure_s"] = settings["exposure_s"]
+        temperatures.append(settings.get("temperature_c", np.nan))
+    if "temperature_c" not in table.columns and np.isfinite(temperatures).all():
+        table["temperature_c"] = temperatures
+    return table
 
 
 #: the public name: a stack directory's validated manifest, every stack opened lazily

@@ -73,8 +73,11 @@ def test_maps_from_fits_stacks_equal_those_from_npy(tmp_path):
     for name in conditions.file:
         header = fits.Header({"EXPTIME": 0.05})
         fits.PrimaryHDU(np.load(npy / name), header=header).writeto(as_fits / name.replace(".npy", ".fits"))
-    conditions.assign(file=conditions.file.str.replace(".npy", ".fits")).to_csv(as_fits / "conditions.csv", index=False)
+    # the exposures left to the headers (EXPTIME)
+    manifest = conditions.assign(file=conditions.file.str.replace(".npy", ".fits"), exposure_s="")
+    manifest.to_csv(as_fits / "conditions.csv", index=False)
     a, b = load_manifest(npy), load_manifest(as_fits)
+    np.testing.assert_array_equal(b.table.exposure_s, a.table.exposure_s)
     for x, y in zip(a.stacks, b.stacks, strict=True):
         assert y.format == "fits" and x.shape == y.shape
         np.testing.assert_array_equal(x.read_rows(0, x.shape[1]), y.read_rows(0, y.shape[1]))
