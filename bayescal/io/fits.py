@@ -102,8 +102,8 @@ def fits_layout(path: str | Path) -> FitsLayout:
     axes = [int(header[f"NAXIS{k}"]) for k in range(int(header["NAXIS"]), 0, -1)]
     if len(axes) > 3:
         raise TableError(f"{path}: a {len(axes)}-D image; expected a 2-D frame or a 3-D (frames, height, width) stack")
-    shape = tuple(axes) if len(axes) == 3 else (1, *axes)
-    return FitsLayout(offset, shape, np.dtype(">" + code), flip, settings)
+    frames, height, width = axes if len(axes) == 3 else [1, *axes]
+    return FitsLayout(offset, (frames, height, width), np.dtype(">" + code), flip, settings)
 
 
 def header_settings(header) -> dict[str, Any]:

@@ -36,7 +36,7 @@ def test_off_unless_asked_for(spec):
     assert any(isinstance(e, ShutterOffset) for e in bc.build_model(table, auto).parts.effects)
 
 
-@pytest.mark.slow  # six cameras fitted twice (about a minute); test_simulated_with_a_true_offset stays in the default run
+@pytest.mark.slow  # six cameras fitted twice (about a minute); test_simulated_with_a_true_offset stays by default
 def test_the_offset_is_recovered_and_an_unmeasured_exposure_predicted(spec):
     """Calibrated at 4 and 10 ms only, 6 bench cameras x 3 channels x 2 radiances read at 8 ms: the shutter
     model's 95 % predictive intervals hold the bench's readings (>= 30 of 36; P ~ 2e-3 at the nominal rate)
