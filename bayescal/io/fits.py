@@ -63,15 +63,12 @@ def read_fits_image(path: str | Path) -> tuple[np.ndarray, dict[str, Any]]:
     :func:`header_settings` of its header."""
     path = Path(path)
     fits = _fits()
-    with fits.open(path, memmap=False, do_not_scale_image_data=True) as hdul:
+    with fits.open(path, memmap=False, uint=True) as hdul:  # astropy turns BZERO-shifted pixels unsigned
         _, hdu = _image_hdu(hdul, path)
-        flip = _unsigned_flip(hdu.header, path)
+        _unsigned_flip(hdu.header, path)  # refuse scaled pixels before astropy scales them to floats
         data = np.asarray(hdu.data)
         settings = header_settings(hdu.header)
-    data = data.astype(data.dtype.newbyteorder("="))
-    if flip:
-        data = (data.view(data.dtype.str.replace("i", "u")) ^ flip).astype(data.dtype.str.replace("i", "u"))
-    return data, settings
+    return data.astype(data.dtype.newbyteorder("=")), settings
 
 
 @dataclass(frozen=True)
