@@ -46,3 +46,17 @@ def test_the_public_names_are_listed_alike():
     lazy = {k: v for k, v in bayescal._LAZY.items()}  # noqa: SLF001 - the table under test
     assert eager == lazy
     assert set(lazy) <= set(bayescal.__all__)
+
+
+def test_noise_and_clipping_are_composed_in_one_module():
+    """A reading's noise meets the ADC in :mod:`bayescal.model.observation` alone: no other module of the
+    camera's equation calls the ADC (the film and the independent simulators have their own physics)."""
+    callers = []
+    for path in PACKAGE.rglob("*.py"):
+        rel = path.relative_to(PACKAGE).as_posix()
+        if rel.startswith(("film/", "validation/")):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", "")) == "adc":
+                callers.append(rel)
+    assert set(callers) == {"model/observation.py"}, callers

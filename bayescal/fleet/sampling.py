@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -113,7 +114,7 @@ def _potential(plan: Plan):
 
     def potential(u, arrays):
         logs = _log_scales(plan, u, arrays["walk_interval"], jnp)
-        lp = 0.0
+        lp: Any = 0.0
         for name, v in logs.items():  # HalfNormal(prior) on each scale (on kappa - 1), with the log Jacobian
             lp = lp + jnp.sum(norm.logpdf(jnp.exp(v), 0.0, priors[name]) + v)
         return -(lp + log_marginal(plan, _exp(logs, jnp), arrays))

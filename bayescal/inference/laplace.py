@@ -151,7 +151,7 @@ def _whitened_bfgs():
     by a fit whose Newton steps did not converge)."""
     import optimistix as optx
 
-    solver = optx.BFGS(rtol=1e-12, atol=1e-12)
+    solver: Any = optx.BFGS(rtol=1e-12, atol=1e-12)
 
     def run(potential, z_c, precond, data):
         fn = lambda w, args: potential(args[0] + args[1] @ w, args[2])
@@ -181,7 +181,7 @@ def _batched_map(program: Program, rounds: int):
         def round_(carry):
             z, steps, k, _ = carry
             precond = _whitening(program.hessian(z, data), jnp)
-            sol = optx.minimise(
+            sol: Any = optx.minimise(
                 whitened, solver, jnp.zeros_like(z), args=(z, precond, data), max_steps=500, throw=False
             )
             z = z + precond @ sol.value

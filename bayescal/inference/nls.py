@@ -64,7 +64,7 @@ def _solver(model: Callable) -> tuple[Callable, Callable]:
     solver: Any = optx.LevenbergMarquardt(rtol=1e-14, atol=1e-14)
 
     def run(u0, scale, x, y):
-        sol = optx.least_squares(residual, solver, u0, args=(scale, x, y), max_steps=5000, throw=False)
+        sol: Any = optx.least_squares(residual, solver, u0, args=(scale, x, y), max_steps=5000, throw=False)
         return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
 
     jac = jax.jacfwd(lambda b, x: model(b, x))

@@ -15,6 +15,7 @@ import numpy as np
 import numpyro
 
 from bayescal.io.table import MeasurementTable
+from bayescal.model import observation
 from bayescal.model.components import (
     EFFECTS,
     Component,
@@ -131,9 +132,7 @@ def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
 
         factors = (multiplier, *(f.sample(data) for f in parts.factors))
         expected = reading(data.u, factors, response, parts.sample_offsets(data))
-        var_mean = parts.noise.sample(data, expected.signal)
-        var_pix = parts.noise.nominal_pixel_variance(data, expected.signal, jnp)
-        parts.saturation.observe(data, expected.mean, expected.signal, var_pix, var_mean)
+        observation.score(parts.noise, parts.saturation, data, expected)
 
     return model
 

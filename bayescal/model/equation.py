@@ -22,6 +22,9 @@ Three places evaluate the equation, each with the values it has:
 - the simulator (:func:`bayescal.model.simulate.simulate`): the truth, in physical units.
 
 All three call :func:`reading`, so the order in which terms compose is written here alone.  Its
+inverse, :func:`stimulus`, undoes the same terms in the reverse order (the inversion of readings,
+:mod:`bayescal.prediction.invert`); the noise and the clipping of a reading are composed in
+:mod:`bayescal.model.observation`.  Its
 arguments are consumed in the equation's order (the factors, then the response, then the offsets),
 so terms that sample as they are evaluated draw their sites in that order.
 """
@@ -31,7 +34,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from typing import Any, NamedTuple
 
-__all__ = ["ROLES", "Reading", "reading"]
+__all__ = ["ROLES", "Reading", "reading", "stimulus"]
 
 #: the places a component fills in the equation
 ROLES = ("settings", "factor", "response", "offset", "noise", "observation")
@@ -66,3 +69,38 @@ def reading(u: Any, factors: Iterable[Any], response: Callable[[Any], Any], offs
     for term in offsets:
         offset = offset + term
     return Reading(signal, offset + signal)
+
+
+def stimulus(
+    dn: Any,
+    factors: Iterable[Any],
+    inverse_response: Callable[[Any], Any],
+    offsets: Iterable[Any],
+    noise: Callable[[Any], Any] | None = None,
+) -> Any:
+    """The inverse of :func:`reading`: the stimulus ``u`` that reads ``dn``,
+    ``R^-1(dn - sum(offsets) - e(S)) / prod(factors)``.
+
+    Parameters
+    ----------
+    dn : array
+        Readings, broadcast against the offsets and the factors.
+    factors : iterable of arrays or floats
+        The factors on the effective stimulus (divided out last).
+    inverse_response : callable
+        ``S -> x``: the response's inverse at the row's effective gain.
+    offsets : iterable of arrays or floats
+        Levels added to the reading (subtracted first).
+    noise : callable, optional
+        ``S -> e``: the reading's noise at signal ``S``, subtracted before the response is inverted
+        (a posterior draw of what the reading's noise was); None inverts the expected reading.
+    """
+    signal = dn
+    for term in offsets:
+        signal = signal - term
+    if noise is not None:
+        signal = signal - noise(signal)
+    x = inverse_response(signal)
+    for factor in factors:
+        x = x / factor
+    return x

@@ -24,7 +24,8 @@ import pandas as pd
 from bayescal.errors import SpecError
 from bayescal.io.design import Design, Truth
 from bayescal.io.table import MeasurementTable
-from bayescal.model.components import Dark, Noise, Response, Saturation, Sphere, effect
+from bayescal.model import observation
+from bayescal.model.components import Dark, Noise, Response, Sphere, effect
 from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.data import effective_stimulus
 from bayescal.model.equation import reading
@@ -83,10 +84,20 @@ class Simulation:
             },
             index=range(stim.size),
         )
-        mu, signal, var_t = _camera(self.truth, spec, rows, stim)
+        expected, var_t = _camera(self.truth, spec, rows, stim)
         single = n_avg == 1
-        var = Noise.reading_variance(var_t, n_avg, self.truth.excess_dn, self.truth.prnu if single else 0.0, signal)
-        out = Saturation.adc(mu + np.sqrt(var) * rng.standard_normal(stim.size), spec.full_scale, integer=single)
+        normals = rng.standard_normal(stim.size)
+        prnu = self.truth.prnu if single else 0.0
+        out = observation.draw(
+            expected,
+            var_t,
+            normals,
+            spec.full_scale,
+            n_avg=n_avg,
+            excess=self.truth.excess_dn,
+            prnu=prnu,
+            integer=single,
+        )
         return out.reshape(np.shape(stimulus))
 
 
@@ -122,19 +133,22 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
     nominal = np.where(lvl >= 0, np.asarray(design.levels)[np.maximum(lvl, 0)], 0.0)
     true_stim = nominal * scale * Sphere.factor(np.where(lvl >= 0, level_err[np.maximum(lvl, 0)], 0.0))
     t, g, m, temp = (rows[k].to_numpy() for k in ("exposure_s", "gain", "tdi_stages", "temperature_c"))
-    mu, signal, var_t = _camera(truth, spec, rows, true_stim)
+    expected, var_t = _camera(truth, spec, rows, true_stim)
     n_avg = design.n_frames * design.n_pixels
-    if n_avg == 1:
-        reading = mu + np.sqrt(Noise.reading_variance(var_t, 1.0, truth.excess_dn)) * rng.standard_normal(mu.size)
-        dn_mean = Saturation.adc(reading, fs, integer=True)
-    else:  # a region mean: each pixel clips on its own (pixel values spread by noise and PRNU)
-        spread = np.sqrt(var_t + (truth.prnu * signal) ** 2)
-        mean_clipped = Saturation.clipped_mean(mu, spread, fs)
-        unclipped = Saturation.unclipped_fraction(mu, spread, fs)
-        sd = np.sqrt(Noise.reading_variance(var_t * unclipped, n_avg, truth.excess_dn * np.sqrt(unclipped)))
-        dn_mean = Saturation.adc(mean_clipped + sd * rng.standard_normal(mu.size), fs)
+    single = n_avg == 1  # one pixel (the same one on every row: its PRNU is part of its response)
+    normals = rng.standard_normal(len(rows))
+    dn_mean = observation.draw(
+        expected,
+        var_t,
+        normals,
+        fs,
+        n_avg=n_avg,
+        excess=truth.excess_dn,
+        integer=single,
+        pixel_prnu=None if single else truth.prnu,  # a region mean: each pixel clips on its own
+    )
     dof = max(design.n_frames - 1, 1) * design.n_pixels
-    dn_var = var_t * rng.chisquare(dof, mu.size) / dof
+    dn_var = var_t * rng.chisquare(dof, len(rows)) / dof
     df = pd.DataFrame(
         {
             "channel": ch,
@@ -156,7 +170,7 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
 
 
 def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndarray):
-    """Expected DN, signal and per-pixel temporal variance of the true camera at every row (its
+    """The expected reading (DN and signal) and per-pixel temporal variance of the true camera at every row (its
     channel, exposure, gain, TDI stages and temperature; docs/architecture.md, section 2)."""
     ch = rows["channel"].to_numpy()
     t, g, m = (rows[k].to_numpy(dtype=float) for k in ("exposure_s", "gain", "tdi_stages"))
@@ -177,7 +191,7 @@ def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndar
     u = effective_stimulus(stimulus, t, g, m, spec)
     expected = reading(u, (factor,), lambda x: Response.forward(coef, x), (dark, added))
     var_t = Noise.pixel_variance(truth.read_noise_dn, truth.conversion_gain, g_rel, expected.signal)
-    return expected.mean, expected.signal, var_t
+    return expected, var_t
 
 
 def _effects(truth: Truth, rows: pd.DataFrame, spec: ModelSpec) -> tuple[np.ndarray, np.ndarray]:

@@ -31,13 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from bayescal.errors import PosteriorError, SpecError, TableError
-from bayescal.model import kinds
+from bayescal.model import kinds, observation
 from bayescal.model.components import (
     FactorTerm,
     Noise,
     OffsetTerm,
     Response,
-    Saturation,
     effect_terms,
     offset_terms,
 )
@@ -366,16 +365,26 @@ class Calibration:
             return signal
         return roll.expand(signal, self.rolloff_shape, self.rolloff)
 
+    def pixel_var(self, signal: np.ndarray, setting: Setting) -> np.ndarray:
+        """Temporal variance (DN^2) of one pixel reading at ``signal`` and ``setting``'s gain: read noise,
+        quantisation and shot noise (:meth:`~bayescal.model.components.noise.Noise.pixel_variance`)."""
+        return Noise.pixel_variance(
+            self.read_noise_dn, self.conversion_gain, setting.gain / self.reference.gain, signal
+        )
+
+    def excess(self, ndim: int) -> np.ndarray:
+        """The fitted excess scatter of a reading (DN) per draw, shaped to broadcast against an array of
+        ``ndim`` dimensions with the draws first."""
+        return self.excess_dn.reshape((-1,) + (1,) * (ndim - 1))
+
     def noise_var(self, signal: np.ndarray, setting: Setting, n_avg: float = 1.0, prnu: float = 0.0) -> np.ndarray:
         """Variance (DN^2) of one reading with ``n_avg`` pixels x frames averaged
         (:class:`~bayescal.model.components.noise.Noise`).
 
         ``signal`` has the draws on its first axis.
         """
-        g_rel = setting.gain / self.reference.gain
-        pixel = Noise.pixel_variance(self.read_noise_dn, self.conversion_gain, g_rel, signal)
-        excess = self.excess_dn.reshape((-1,) + (1,) * (np.ndim(signal) - 1))
-        return Noise.reading_variance(pixel, n_avg, excess, prnu, np.maximum(signal, 0.0))
+        excess = self.excess(np.ndim(signal))
+        return Noise.reading_variance(self.pixel_var(signal, setting), n_avg, excess, prnu, np.maximum(signal, 0.0))
 
     def ratio(self, setting: Setting, channel: str | None = None) -> np.ndarray:
         """Stimulus -> effective stimulus per draw: the nominal ``t M g / (t_ref M_ref g_ref)`` times the
@@ -423,10 +432,19 @@ class Calibration:
         per_draw: bool = False,
     ) -> np.ndarray:
         """Posterior predictive readings (one per draw), clipped to ``[0, full scale]`` (``per_draw``: see
-        :meth:`expected_dn`)."""
+        :meth:`expected_dn`; the noise and the clipping: :func:`bayescal.model.observation.draw`)."""
         expected = self.reading(channel, stimulus, setting, relative, per_draw)
-        sd = np.sqrt(self.noise_var(expected.signal, setting, n_avg, prnu))
-        return Saturation.adc(expected.mean + sd * rng.standard_normal(expected.mean.shape), self.full_scale)
+        pixel = self.pixel_var(expected.signal, setting)
+        normals = rng.standard_normal(expected.mean.shape)
+        excess = self.excess(np.ndim(expected.signal))
+        return observation.draw(expected, pixel, normals, self.full_scale, n_avg=n_avg, excess=excess, prnu=prnu)
+
+    def clipped_dn(
+        self, channel: str, stimulus, setting: Setting, relative: bool = False, per_draw: bool = False
+    ) -> np.ndarray:
+        """Expected DN per draw as the ADC outputs it, clipped to ``[0, full scale]`` (:meth:`expected_dn`,
+        :func:`bayescal.model.observation.expected`)."""
+        return observation.expected(self.expected_dn(channel, stimulus, setting, relative, per_draw), self.full_scale)
 
     def flags(self, setting: Setting, stimulus=None) -> list[str]:
         """Why a prediction at ``setting`` (and ``stimulus``) is an extrapolation."""

@@ -44,6 +44,7 @@ import numpy as np
 import pandas as pd
 
 from bayescal.errors import TableError
+from bayescal.model import equation
 from bayescal.model.components import Response
 from bayescal.model.setting import Setting
 from bayescal.posterior.calibration import Calibration
@@ -135,15 +136,22 @@ def radiance_draws(
     uncertainty).
     """
     dn = np.asarray(dn, dtype=float)[:, None]
-    signal = dn - cal.dark_dn(channel, setting)[None, :]
-    if z is not None:  # the reading's own noise (its variance per draw, at the reading's signal)
-        signal -= np.sqrt(cal.noise_var(signal.T, setting, n_avg, prnu).T) * z[None, :]
-    linear = cal.response_signal(signal)
-    beyond = ~np.isfinite(linear)  # past a roll-off's knee: no stimulus reads that much
-    x = Response.inverse(cal.coefficients(channel, setting, relative), np.where(beyond, 0.0, linear))
-    x[beyond] = np.inf
-    x /= cal.ratio(setting, channel)[None, :]
-    return x
+    coef = cal.coefficients(channel, setting, relative)
+
+    def inverse_response(signal: np.ndarray) -> np.ndarray:
+        linear = cal.response_signal(signal)
+        beyond = ~np.isfinite(linear)  # past a roll-off's knee: no stimulus reads that much
+        x = Response.inverse(coef, np.where(beyond, 0.0, linear))
+        x[beyond] = np.inf
+        return x
+
+    def noise(signal: np.ndarray) -> np.ndarray:  # the reading's own noise (its variance per draw, at its signal)
+        assert z is not None
+        return np.sqrt(cal.noise_var(signal.T, setting, n_avg, prnu).T) * z[None, :]
+
+    dark = cal.dark_dn(channel, setting)[None, :]
+    ratio = cal.ratio(setting, channel)[None, :]
+    return equation.stimulus(dn, (ratio,), inverse_response, (dark,), noise if z is not None else None)
 
 
 def invert(

@@ -26,7 +26,6 @@ import numpy as np
 import pandas as pd
 
 from bayescal.errors import SpecError
-from bayescal.model.components import Saturation
 from bayescal.model.setting import Setting
 from bayescal.posterior.calibration import Calibration
 from bayescal.prediction.invert import radiance_draws
@@ -123,12 +122,9 @@ def plan_exposure(
     for t, g, m in itertools.product(exposures, gains, tdi_stages):
         setting = Setting(float(t), float(g), float(m))
         try:
-            expected = cal.reading(channel, stim, setting, per_draw=True)  # one stimulus per draw
+            reading = cal.sample_dn(channel, stim, setting, rng, n_avg, per_draw=True)  # one stimulus per draw
         except SpecError:
             continue  # a gain without dark calibration cannot be planned for
-        sd = np.sqrt(cal.noise_var(expected.signal, setting, n_avg))
-        noise = sd * rng.standard_normal(expected.signal.shape)
-        reading = Saturation.adc(expected.mean + noise, cal.full_scale)
         why = cal.flags(setting, float(np.median(stim)))
         if why and not allow_extrapolation:
             continue

@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from bayescal.model.components import Saturation
 from bayescal.model.setting import Setting
 from bayescal.posterior.calibration import Calibration
 
@@ -65,7 +64,7 @@ def predict(
     tail = (1 - level) / 2
     rows = []
     for ch in channels or list(cal.channels):
-        mean = Saturation.adc(cal.expected_dn(ch, stim, setting, relative), cal.full_scale)
+        mean = cal.clipped_dn(ch, stim, setting, relative)
         reading = cal.sample_dn(ch, stim, setting, rng, n_avg=n_avg, prnu=prnu, relative=relative)
         ci = np.quantile(mean, [tail, 0.5, 1 - tail], axis=0)
         pi = np.quantile(reading, [tail, 1 - tail], axis=0)

@@ -230,7 +230,7 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
                 continue
             s = Setting(t, g, m)
             grid = np.linspace(0, rows["stimulus"].max() * 1.05, 60)
-            mean = Saturation.adc(cal.expected_dn(ch, grid, s, relative=True), cal.full_scale)
+            mean = cal.clipped_dn(ch, grid, s, relative=True)
             pred = cal.sample_dn(ch, grid, s, rng, n_avg=n_avg, relative=True)
             lo, hi = np.quantile(mean, [0.025, 0.975], axis=0)
             plo, phi = np.quantile(pred, [0.025, 0.975], axis=0)
@@ -349,8 +349,8 @@ def _partly_clipped(cal: Calibration, channel: str, stimulus, setting, prnu_boun
     predictive sd (``stimulus`` per draw)."""
     mean = np.median(cal.expected_dn(channel, stimulus, setting, relative=True, per_draw=True), axis=0)
     signal = np.maximum(mean - np.median(cal.dark_dn(channel, setting)), 0.0)
-    pixel = np.median(cal.noise_var(signal[None, :], setting, 1.0), axis=0)
-    loss = mean - Saturation.clipped_mean(mean, np.sqrt(pixel + (prnu_bound * signal) ** 2), cal.full_scale)
+    pixel = cal.pixel_var(signal, setting)
+    loss = Saturation.loss(mean, pixel, prnu_bound, signal, cal.full_scale)
     return loss > 0.5 * sd
 
 

@@ -100,6 +100,13 @@ class Saturation(Component):
         return ndtr((full_scale - mu) / sigma)
 
     @staticmethod
+    def loss(mean, pixel_variance, prnu, signal, full_scale=1.0, xp=np):
+        """How far a region mean falls below ``mean`` when its pixels, spread by their temporal variance
+        and a PRNU fraction ``prnu`` of the ``signal``, clip one by one at ``full_scale``:
+        ``mean - E[min(Y, fs)]`` (:meth:`clipped_mean`)."""
+        return mean - Saturation.clipped_mean(mean, xp.sqrt(pixel_variance + (prnu * signal) ** 2), full_scale, xp)
+
+    @staticmethod
     def adc(reading, full_scale, xp=np, integer: bool = False):
         """What the ADC outputs for an analogue ``reading``: clipped to ``0..full_scale`` (rounded to
         whole codes for a single reading, ``integer``)."""
@@ -143,18 +150,15 @@ class Saturation(Component):
                 numpyro.sample("obs", dist.Normal(mean, scale), obs=data.y)
             return
         if self.spec.partial == "window":
-            temporal = jnp.sqrt(var_pix_nominal)
-            widest = jnp.sqrt(var_pix_nominal + (self.spec.prnu_bound * signal) ** 2)
-            lo = mean - self.clipped_mean(mean, temporal, xp=jnp)
-            hi = jnp.maximum(mean - self.clipped_mean(mean, widest, xp=jnp), lo)
+            lo = self.loss(mean, var_pix_nominal, 0.0, signal, xp=jnp)
+            hi = jnp.maximum(self.loss(mean, var_pix_nominal, self.spec.prnu_bound, signal, xp=jnp), lo)
             obs = ClipWindowNormal(mean, jnp.sqrt(var_mean), lo, hi, data.threshold, data.censored)
             numpyro.deterministic("row_mean", obs.mean)
             numpyro.deterministic("row_sd", obs.sd)
             with numpyro.handlers.mask(mask=data.keep):
                 numpyro.sample("obs", obs, obs=data.y)
             return
-        spread = jnp.sqrt(var_pix_nominal + (self.prnu() * signal) ** 2)
-        loc = numpyro.deterministic("row_mean", self.clipped_mean(mean, spread, xp=jnp))
+        loc = numpyro.deterministic("row_mean", mean - self.loss(mean, var_pix_nominal, self.prnu(), signal, xp=jnp))
         scale = numpyro.deterministic("row_sd", jnp.sqrt(var_mean))
         with numpyro.handlers.mask(mask=data.keep):
             numpyro.sample("obs", CensoredNormal(loc, scale, data.threshold, data.censored), obs=data.y)

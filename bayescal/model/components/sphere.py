@@ -12,6 +12,7 @@ is exactly degenerate with the gains: it is not sampled but folded in afterwards
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -76,7 +77,7 @@ class Sphere(StimulusFactor):
         import numpyro
         import numpyro.distributions as dist
 
-        err = 0.0
+        err: Any = 0.0
         if self.per_level:
             z = numpyro.sample("level_z", dist.Normal(0.0, 1.0).expand([self.n_levels]).to_event(1))
             err = jnp.concatenate([data.level_sigma * z, jnp.zeros(1)])[data.level]
