@@ -17,18 +17,18 @@ __all__ = ["clear_caches"]
 
 
 def clear_caches() -> None:
-    """Forget every compiled program of bayescal and JAX's in-memory caches, and return the
-    freed memory to the system."""
+    """Forget every compiled program of bayescal (every module-level cache with ``cache_clear``: the
+    ``lru_cache`` functions and the program cache) and JAX's in-memory caches, and return the freed
+    memory to the system."""
     for name, module in list(sys.modules.items()):
         if not name.startswith("bayescal.") or module is None:
             continue
         for value in list(vars(module).values()):
+            if isinstance(value, type):
+                continue  # a cache's class, not a cache
             clear = getattr(value, "cache_clear", None)
             if callable(clear) and getattr(value, "__module__", None) == name:
                 clear()
-    program = sys.modules.get("bayescal.inference.program")
-    if program is not None:
-        program.clear_program_cache()
     if "jax" in sys.modules:
         import jax
 

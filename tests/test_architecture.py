@@ -5,6 +5,8 @@ in CI: ``lint-imports``)."""
 import ast
 from pathlib import Path
 
+import pytest
+
 import bayescal
 from bayescal.model.components import CORE, EFFECTS
 
@@ -60,3 +62,70 @@ def test_noise_and_clipping_are_composed_in_one_module():
             if isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", "")) == "adc":
                 callers.append(rel)
     assert set(callers) == {"model/observation.py"}, callers
+
+
+def _layers() -> list[list[str]]:
+    """import-linter's layers (top first), each a list of package names without the root."""
+    import tomllib
+
+    config = tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text())["tool"]["importlinter"]
+    layers = next(c for c in config["contracts"] if c["type"] == "layers")["layers"]
+    return [[name.strip().removeprefix("bayescal.") for name in layer.split("|")] for layer in layers]
+
+
+def _strings(tree: ast.AST) -> list[str]:
+    """String constants of a module that are not docstrings."""
+    docs = set()
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(body, list) and body and isinstance(body[0], ast.Expr):
+            if isinstance(body[0].value, ast.Constant):
+                docs.add(id(body[0].value))
+    return [
+        n.value
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Constant) and isinstance(n.value, str) and id(n) not in docs
+    ]
+
+
+def test_no_layer_names_a_package_above_it_by_string():
+    """import-linter sees imports; a module path in a string (``importlib.import_module("bayescal.fleet...")``)
+    would cross the layers unseen.  Packages above register with the model through entry points instead
+    (:mod:`bayescal.model.plugins`)."""
+    import re
+
+    layers = _layers()
+    found = []
+    for depth, layer in enumerate(layers):
+        above = [name for upper in layers[:depth] for name in upper]
+        if not above:
+            continue
+        names = "|".join(re.escape(a) for a in above)
+        pattern = re.compile(rf"\bbayescal\.({names})\b")
+        for name in layer:
+            root = PACKAGE / name
+            paths = list(root.rglob("*.py")) if root.is_dir() else [root.with_suffix(".py")]
+            for path in paths:
+                hits = [s for s in _strings(ast.parse(path.read_text())) if pattern.search(s)]
+                found += [f"{path.relative_to(PACKAGE)}: {s!r}" for s in hits]
+    assert not found, found
+
+
+def test_the_packages_above_register_their_kinds_and_sections():
+    from bayescal.model import kinds, plugins
+    from bayescal.model.spec import section_class, section_names
+
+    assert "film" in kinds.names() and kinds.get("film").__name__ == "bayescal.film.kind"
+    assert "fleet" in section_names() and section_class("fleet").__module__ == "bayescal.fleet.spec"
+    with pytest.raises(bayescal.SpecError, match="unknown model kind 'plate'; registered: \\['film'\\]"):
+        kinds.get("plate")
+    assert plugins.names("bayescal.nothing") == ()
+
+
+def test_clear_caches_forgets_the_compiled_programs():
+    from bayescal._caches import clear_caches
+    from bayescal.inference import program
+
+    program._CACHE[("a structure",)] = None  # noqa: SLF001 - the cache under test
+    clear_caches()
+    assert len(program._CACHE) == 0  # noqa: SLF001

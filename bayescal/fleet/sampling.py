@@ -27,7 +27,9 @@ from bayescal.fleet.model import (
     standard_normals,
 )
 from bayescal.fleet.spec import FleetSpec
-from bayescal.inference.chains import Phased, retry_target, run_phases
+from bayescal.inference.chains import Phased, attempt_seed, map_chains, run_phases, with_retries
+from bayescal.inference.laplace import find_map
+from bayescal.inference.program import Objective
 from bayescal.model.spec import InferenceSpec
 
 __all__ = ["sample_fleet", "FleetDraws", "laplace_start", "loo_of", "unit_log_likelihood"]
@@ -123,40 +125,32 @@ def _potential(plan: Plan):
 
 
 @lru_cache(maxsize=16)
-def _mode_programs(plan: Plan):
-    """``(value_and_grad, hessian)`` of the potential, compiled once per structure."""
-    import jax
-
-    potential = _potential(plan)
-    return jax.jit(jax.value_and_grad(potential)), jax.jit(jax.hessian(potential))
+def _objective(plan: Plan) -> Objective:
+    """The potential with its gradient and Hessian, compiled once per structure."""
+    return Objective.of(_potential(plan))
 
 
 def laplace_start(plan: Plan, arrays: dict) -> tuple[np.ndarray, np.ndarray] | None:
-    """The mode of the scales' posterior (BFGS on the unconstrained scales) and the inverse of
-    the potential's Hessian there; ``None`` when the search fails or the Hessian is not
-    positive definite (the sampler then starts as it would without it).
+    """The mode of the scales' posterior (the camera's mode search,
+    :func:`bayescal.inference.laplace.find_map`, on the unconstrained scales) and the inverse of the
+    potential's Hessian there; ``None`` when the search fails or the Hessian is not positive definite
+    (the sampler then starts as it would without it).
 
     NUTS starts from draws of this normal, with its variances as the first diagonal mass
     matrix: with the latents integrated out the scales' posterior is close to it in the bulk,
     and warmup then spends its iterations on the step size, not on finding the posterior.
     """
-    from scipy.optimize import minimize
-
-    value_and_grad, hessian = _mode_programs(plan)
+    objective = _objective(plan)
     dim = sum(plan.sampled().values())
-
-    def fun(u):
-        v, g = value_and_grad(u, arrays)
-        return float(v), np.asarray(g, dtype=float)
-
-    found = minimize(fun, np.full(dim, np.log(0.5)), jac=True, method="BFGS")
-    h = np.asarray(hessian(found.x, arrays))
-    if not (np.all(np.isfinite(found.x)) and np.all(np.isfinite(h))):
+    mode, converged, _ = find_map(objective, arrays, np.full(dim, np.log(0.5)))
+    mode = np.asarray(mode)
+    h = np.asarray(objective.hessian(mode, arrays))
+    if not (converged and np.all(np.isfinite(mode)) and np.all(np.isfinite(h))):
         return None
     w, v = np.linalg.eigh(0.5 * (h + h.T))
     if w.min() <= 0.0:
         return None
-    return found.x, (v / w) @ v.T
+    return mode, (v / w) @ v.T
 
 
 #: conditional draws per call of the compiled program (its memory: ~80 kB per draw and camera)
@@ -175,8 +169,6 @@ def _latent_program(plan: Plan):
 def _latents(plan: Plan, hyper: dict, args: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """:func:`.model.conditional_draws` (the same normal variates, so the same draws) by the compiled
     program, in chunks of :data:`DRAW_CHUNK` draws (the last one padded) on :data:`THREADS` threads."""
-    from concurrent.futures import ThreadPoolExecutor
-
     import jax
 
     sc, kappa = draw_scales(plan, hyper, args)
@@ -190,8 +182,7 @@ def _latents(plan: Plan, hyper: dict, args: dict, rng: np.random.Generator) -> t
         out = jax.block_until_ready(program(sc[idx], kappa[idx], arrays, z_g[idx], z_m[idx]))
         return [np.asarray(o)[: min(DRAW_CHUNK, s - i)] for o in out]
 
-    with ThreadPoolExecutor(THREADS) as pool:  # XLA releases the GIL while a chunk runs
-        parts = list(pool.map(chunk, range(0, s, DRAW_CHUNK)))
+    parts = map_chains(lambda k: chunk(k * DRAW_CHUNK), -(-s // DRAW_CHUNK), THREADS)
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
@@ -248,7 +239,7 @@ def sample_fleet(
     With ``inference`` the chains continue (``spec.extend`` times at most) while the scales miss
     its ``min_ess`` or ``max_rhat``, and chains with a divergent transition are run again (new
     chains) by the retry policy a unit's own NUTS fit follows
-    (:func:`bayescal.inference.chains.retry_target`); the diagnostics then say
+    (:func:`bayescal.inference.chains.with_retries`); the diagnostics then say
     ``first_divergences`` and ``retried_at``.
     """
 
@@ -257,14 +248,17 @@ def sample_fleet(
     sampled = plan.sampled()
     first, retried_at = None, 0.0
     if sampled:
-        z, divergences, gradients = _run_chains(plan, spec, args, seed, inference)
+        runs: list[Phased] = []
+
+        def attempt(_items, target: float, k: int) -> list[Phased]:  # new chains, smaller steps on a rerun
+            runs.append(_run_chains(plan, replace(spec, target_accept=target), args, attempt_seed(seed, k), inference))
+            return runs[-1:]
+
         retry = inference.retry_target_accept if inference is not None else 0.0
-        run, attempt = spec, 0
-        while (target := retry_target(run.target_accept, retry, divergences / z[..., 0].size)) is not None:
-            first = divergences if first is None else first
-            run, retried_at, attempt = replace(run, target_accept=target), target, attempt + 1  # smaller steps
-            z, divergences, more = _run_chains(plan, run, args, seed + attempt, inference)  # new chains
-            gradients += more
+        (done,) = with_retries(attempt, 1, spec.target_accept, retry, lambda r: (r.divergences, r.z[..., 0].size))
+        z, divergences = done.out.z, done.out.divergences
+        gradients = sum(r.gradients for r in runs)
+        first, retried_at = (done.first_divergences, done.rerun_at) if done.rerun_at else (None, 0.0)
         n = z.shape[1]
         hyper = _unpack(plan, z.reshape(chains * n, -1), args["walk_interval"])
     else:  # nothing to sample: the conditional draws are the posterior

@@ -1,7 +1,8 @@
 """``[fleet]``: the hierarchy over a fleet of cameras of one type (docs/architecture.md, section 8).
 
 The section belongs to the fleet; a camera's spec (:class:`~bayescal.model.spec.ModelSpec`) carries
-it as one of its registered sections (:data:`bayescal.model.spec.SECTIONS`) and reads it as
+it as a section this package registers (``pyproject.toml``'s ``bayescal.spec_sections`` entry points,
+:mod:`bayescal.model.plugins`) and reads it as
 ``spec.fleet``.  What the sampler's settings were measured against is in
 ``benchmarks/results/fleet_speed.md`` and the fleet guide (``docs/guides/fleet.md``).
 """

@@ -1,11 +1,17 @@
-"""Chain driving shared by every NUTS run: the one retry policy, and NUTS in phases on a potential.
+"""Chain driving shared by every NUTS run: one thread pool, the one retry loop, and NUTS in phases on a
+potential.
+
+**Threads** (:func:`map_chains`).  Chains run side by side on threads (XLA releases the GIL while a
+chain runs); each is blocked on in its thread, so JAX's asynchronous dispatch does not queue them on one
+core; Ctrl-C returns at once (a running chain cannot be interrupted, and is not waited for).
 
 **Retries** (:func:`retry_target`).  Divergent transitions mark a region of high curvature (a scale
 near zero) that the adapted step size overshoots.  A run with any is run again, with new chains,
 at the spec's ``retry_target_accept`` (smaller steps); a run that already was that retry gets one
 last run at :data:`LAST_RETRY_ACCEPT` when only a few of its draws diverged (more: a posterior that
-smaller steps will not mend).  A camera's fit (:mod:`bayescal.inference.nuts`) and the fleet's stage
-two (:mod:`bayescal.fleet.sampling`) both decide by this function.
+smaller steps will not mend).  :func:`with_retries` is the loop, with one seed rule
+(:func:`attempt_seed`): a camera's fit (:mod:`bayescal.inference.nuts`, many datasets at once) and the
+fleet's stage two (:mod:`bayescal.fleet.sampling`) both run through it.
 
 **Phases** (:func:`run_phases`).  NUTS on a potential ``potential(u, arrays)`` whose scale is known
 in advance (a diagonal inverse mass matrix from a Laplace approximation), with only the step size
@@ -25,13 +31,25 @@ out, and step-only adaptation took 2.1x fewer gradient evaluations there
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from typing import Any, NamedTuple
 
 import numpy as np
 
-__all__ = ["LAST_RETRY_ACCEPT", "LAST_RETRY_MAX_FRACTION", "Phased", "retry_target", "run_phases", "step_program"]
+__all__ = [
+    "LAST_RETRY_ACCEPT",
+    "LAST_RETRY_MAX_FRACTION",
+    "Phased",
+    "Retried",
+    "attempt_seed",
+    "map_chains",
+    "retry_target",
+    "run_phases",
+    "step_program",
+    "with_retries",
+]
 
 #: the last rerun's target acceptance: a few divergences left after the spec's retry get one more run here
 LAST_RETRY_ACCEPT = 0.99
@@ -60,6 +78,85 @@ def retry_target(target_accept: float, retry_target_accept: float, diverging_fra
             return None
         target = LAST_RETRY_ACCEPT
     return target if target > target_accept else None
+
+
+def attempt_seed(seed: int, attempt: int) -> int:
+    """The seed of a run's ``attempt`` (0: the first run, the user's ``seed`` itself; a rerun gets new chains
+    from a seed derived from both, which no other dataset's own seed collides with)."""
+    if attempt == 0:
+        return int(seed)
+    return int(np.random.SeedSequence([int(seed), int(attempt)]).generate_state(1)[0])
+
+
+class Retried(NamedTuple):
+    """What :func:`with_retries` returns for each item: its final run, the divergent transitions of its
+    first run when it was rerun (0: it was not), and the target acceptance of its final run when that was
+    a rerun (0.0: none)."""
+
+    out: Any
+    first_divergences: int
+    rerun_at: float
+
+
+def with_retries[T](
+    run: Callable[[Sequence[int], float, int], Sequence[T]],
+    n: int,
+    target_accept: float,
+    retry_target_accept: float,
+    divergences: Callable[[T], tuple[int, int]],
+) -> list[Retried]:
+    """The one retry loop of every NUTS run (:func:`retry_target`), over ``n`` items run together.
+
+    Parameters
+    ----------
+    run : callable
+        ``run(items, target, attempt)``: the runs of those item indices at that target acceptance, their
+        chains seeded for ``attempt`` (:func:`attempt_seed`; 0 is the first run).
+    n : int
+        Number of items (datasets, or one fleet).
+    target_accept, retry_target_accept : float
+        The first run's target and the spec's retry target (0: no retries).
+    divergences : callable
+        ``divergences(out) -> (divergent transitions, draws)`` of one item's run.
+
+    Items are rerun together: their targets depend on the settings alone, so every item rerun at one
+    attempt gets the same one.
+    """
+    outs = list(run(list(range(n)), target_accept, 0))
+    first, at = [0] * n, [0.0] * n
+    pending, current, attempt = list(range(n)), target_accept, 0
+    while True:
+        targets = {}
+        for i in pending:
+            bad, total = divergences(outs[i])
+            targets[i] = retry_target(current, retry_target_accept, bad / max(total, 1))
+        pending = [i for i, t in targets.items() if t is not None]
+        if not pending:
+            return [Retried(o, f, a) for o, f, a in zip(outs, first, at, strict=True)]
+        target = targets[pending[0]]
+        assert target is not None  # pending items have one
+        current, attempt = target, attempt + 1
+        for i, out in zip(pending, run(pending, current, attempt), strict=True):
+            first[i] = first[i] or divergences(outs[i])[0]
+            outs[i], at[i] = out, current
+
+
+def map_chains[T](one: Callable[[int], T], n: int, threads: int | None = None) -> list[T]:
+    """``[one(0), ..., one(n - 1)]`` on a thread pool of ``threads`` (default: every core), each result
+    blocked on in its thread; Ctrl-C raises at once, not waiting for the running chains."""
+    import os
+
+    import jax
+
+    workers = max(1, min(n, threads or os.cpu_count() or 1))
+    pool = ThreadPoolExecutor(max_workers=workers)
+    try:
+        out = list(pool.map(lambda i: jax.block_until_ready(one(i)), range(n)))
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+    return out
 
 
 class Phased(NamedTuple):
@@ -139,41 +236,33 @@ def run_phases(
         ``mixed(z)`` on the draws so far ``(chain, draw, dim)``: True when they are enough; until then
         every chain continues for another ``draws`` draws, ``extend`` times at most.
     """
-    from concurrent.futures import ThreadPoolExecutor
-
     import jax
 
     chains = int(u0.shape[0])
     key = jax.random.PRNGKey(seed)
-    with ThreadPoolExecutor(max(1, min(threads, chains))) as pool:
 
-        def phase(n: int, adapt: bool, us, steps, tag: int):
-            run = step_program(potential, n, adapt)
-            target = np.float64(target_accept)
-            keys = jax.random.split(jax.random.fold_in(key, tag), chains)
+    def phase(n: int, adapt: bool, us, steps, tag: int):
+        run = step_program(potential, n, adapt)
+        target = np.float64(target_accept)
+        keys = jax.random.split(jax.random.fold_in(key, tag), chains)
+        return map_chains(lambda c: run(keys[c], us[c], imm, steps[c], target, arrays), chains, threads)
 
-            # block in the thread: JAX dispatches asynchronously, and unblocked chains would queue on one core
-            def one(c: int):
-                return jax.block_until_ready(run(keys[c], us[c], imm, steps[c], target, arrays))
-
-            return list(pool.map(one, range(chains)))
-
-        half = warmup // 2
-        # with the Laplace variances as the mass, the posterior is about unit scale: a first step of 0.5
-        settle = phase(half, True, u0, np.full(chains, 0.5), 0)
-        warm = phase(warmup - half, True, [o[0] for o in settle], [o[1] for o in settle], 1)
-        steps = np.full(chains, np.exp(np.mean([np.log(o[1]) for o in warm])))  # one for all: they share the mass
-        outs = phase(draws, False, [o[0] for o in warm], steps, 2)
-        z = [[np.asarray(o[2])] for o in outs]
-        divergences = int(sum(np.sum(np.asarray(o[3])) for o in outs))
-        gradients = int(sum(np.sum(np.asarray(o[4])) for o in settle + warm + outs))
-        for i in range(extend if mixed is not None else 0):
-            assert mixed is not None  # the loop runs only with it
-            if mixed(np.stack([np.concatenate(c) for c in z])):
-                break
-            outs = phase(draws, False, [o[0] for o in outs], steps, 3 + i)  # the chains go on
-            for c, o in enumerate(outs):
-                z[c].append(np.asarray(o[2]))
-            divergences += int(sum(np.sum(np.asarray(o[3])) for o in outs))
-            gradients += int(sum(np.sum(np.asarray(o[4])) for o in outs))
+    half = warmup // 2
+    # with the Laplace variances as the mass, the posterior is about unit scale: a first step of 0.5
+    settle = phase(half, True, u0, np.full(chains, 0.5), 0)
+    warm = phase(warmup - half, True, [o[0] for o in settle], [o[1] for o in settle], 1)
+    steps = np.full(chains, np.exp(np.mean([np.log(o[1]) for o in warm])))  # one for all: they share the mass
+    outs = phase(draws, False, [o[0] for o in warm], steps, 2)
+    z = [[np.asarray(o[2])] for o in outs]
+    divergences = int(sum(np.sum(np.asarray(o[3])) for o in outs))
+    gradients = int(sum(np.sum(np.asarray(o[4])) for o in settle + warm + outs))
+    for i in range(extend if mixed is not None else 0):
+        assert mixed is not None  # the loop runs only with it
+        if mixed(np.stack([np.concatenate(c) for c in z])):
+            break
+        outs = phase(draws, False, [o[0] for o in outs], steps, 3 + i)  # the chains go on
+        for c, o in enumerate(outs):
+            z[c].append(np.asarray(o[2]))
+        divergences += int(sum(np.sum(np.asarray(o[3])) for o in outs))
+        gradients += int(sum(np.sum(np.asarray(o[4])) for o in outs))
     return Phased(np.stack([np.concatenate(c) for c in z]), divergences, gradients)

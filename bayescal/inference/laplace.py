@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayescal._config import computes
-from bayescal.inference.program import Program, ProgramData
+from bayescal.inference.program import Program, ProgramData, Smooth
 
 __all__ = [
     "LaplaceResult",
@@ -43,8 +43,12 @@ class LaplaceResult:
 
 
 @computes
-def find_map(program: Program, data: ProgramData, z0: np.ndarray | jax.Array | None = None, rounds: int = 4):
+def find_map(program: Program | Smooth, data: ProgramData, z0: np.ndarray | jax.Array | None = None, rounds: int = 4):
     """Minimise the potential: damped Newton steps in Hessian-whitened coordinates, BFGS rounds if needed.
+
+    The one mode search of a camera's fit and of the fleet's stage two: ``program`` is a model's
+    :class:`~bayescal.inference.program.Program` or any :class:`~bayescal.inference.program.Smooth`
+    potential (then ``z0`` is required).
 
     Calibration likelihoods are stiff (row precisions ~1e7 in scaled units against O(1) prior
     scales), which stalls plain gradient methods.  Each Newton step whitens with the exact
@@ -58,7 +62,11 @@ def find_map(program: Program, data: ProgramData, z0: np.ndarray | jax.Array | N
 
     Returns ``(z_map, converged, steps)``.
     """
-    z = np.asarray(program.z0 if z0 is None else z0, dtype=float)
+    if z0 is None:
+        if not isinstance(program, Program):
+            raise TypeError("find_map needs a start z0 for a potential that is not a model's program")
+        z0 = program.z0
+    z = np.asarray(z0, dtype=float)
     z, converged, steps = _newton(program, data, z)
     if converged:
         return jnp.asarray(z), True, steps
@@ -94,7 +102,7 @@ POLISH_STEPS = 2
 EIGENVALUE_FLOOR = 1e-13
 
 
-def _newton(program: Program, data: ProgramData, z: np.ndarray) -> tuple[np.ndarray, bool, int]:
+def _newton(program: Program | Smooth, data: ProgramData, z: np.ndarray) -> tuple[np.ndarray, bool, int]:
     """Damped saddle-free Newton from ``z``: ``(z, converged, steps)``.
 
     Once the squared Newton decrement is below :data:`CONVERGED_DECREMENT` the iterate is in the

@@ -14,9 +14,8 @@ no recompilation.
 
 from __future__ import annotations
 
-import os
+import itertools
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from functools import lru_cache
 from typing import NamedTuple
@@ -27,7 +26,7 @@ import numpy as np
 from numpyro.infer.hmc import hmc
 
 from bayescal._config import computes
-from bayescal.inference.chains import retry_target
+from bayescal.inference.chains import attempt_seed, map_chains, with_retries
 from bayescal.inference.laplace import covariance_factor
 from bayescal.inference.program import Program, ProgramData
 from bayescal.model.spec import InferenceSpec
@@ -54,30 +53,37 @@ _EVERY = 50
 
 
 class _Progress:
-    """Host-side progress of concurrently running chains (reports the slowest chain)."""
-
-    active: _Progress | None = None
+    """Host-side progress of one run's concurrently running chains (reports the slowest chain)."""
 
     def __init__(self, callback, chains: int):
         self.callback, self.done, self.lock = callback, [0] * chains, threading.Lock()
 
-    @staticmethod
-    def report(chain, i):
-        self = _Progress.active
-        if self is None or self.callback is None:
-            return
+    def tick(self, chain: int, i: int) -> None:
         with self.lock:
-            self.done[int(chain)] = int(i) + 1
+            self.done[chain] = i + 1
             slowest = min(self.done)
         self.callback(slowest)
 
 
+#: the progress channel of every run in flight, by run number (each compiled chain reports to its run's)
+_RUNS: dict[int, _Progress] = {}
+_RUN_NUMBERS = itertools.count(1)
+
+
+def _report(run, chain, i) -> None:
+    """The chains' host callback: the iteration ``i`` of ``chain`` in run ``run`` (none: nobody listens)."""
+    channel = _RUNS.get(int(run))
+    if channel is not None:
+        channel.tick(int(chain), int(i))
+
+
 @lru_cache(maxsize=32)
 def _compiled(program: Program, settings: tuple):
-    """``run(chain_index, key, w0, data, center, chol)``: one chain, init + warmup + draws."""
+    """``run(run_number, chain_index, key, w0, data, center, chol)``: one chain, init + warmup + draws,
+    reporting its progress to its run's channel."""
     dense, target, depth, warmup, draws = settings
 
-    def chain(index, key, w0, data, center, chol):
+    def chain(run, index, key, w0, data, center, chol):
         def potential(w):
             return program.potential(center + chol @ w, data)
 
@@ -93,7 +99,7 @@ def _compiled(program: Program, settings: tuple):
         )
 
         def tick(i):
-            jax.lax.cond(i % _EVERY == _EVERY - 1, lambda: jax.debug.callback(_Progress.report, index, i), lambda: None)
+            jax.lax.cond(i % _EVERY == _EVERY - 1, lambda: jax.debug.callback(_report, run, index, i), lambda: None)
 
         def warm(s, i):
             tick(i)
@@ -162,14 +168,39 @@ def run_nuts_many(
     ``done(n)`` is called as datasets finish; ``iterations(k)`` every 50 iterations of the
     slowest chain (warmup included).
     """
-    _Progress.active = _Progress(iterations, settings.chains * len(datas)) if iterations is not None else None
+    run = next(_RUN_NUMBERS)
+    if iterations is not None:
+        _RUNS[run] = _Progress(iterations, settings.chains * len(datas))
     try:
-        return _run_many(program, datas, starts, covs, settings, seeds, done)
+        return _run_many(run, program, datas, starts, covs, settings, seeds, done)
     finally:
-        _Progress.active = None
+        _RUNS.pop(run, None)
 
 
-def _run_many(program, datas, starts, covs, settings, seeds, done) -> list[NutsDraws]:
+def _run_many(run_number, program, datas, starts, covs, settings, seeds, done) -> list[NutsDraws]:
+    """Every dataset's chains, the datasets whose chains diverged rerun by the one retry loop
+    (:func:`bayescal.inference.chains.with_retries`)."""
+
+    def attempt(items, target: float, k: int) -> list[NutsDraws]:
+        at = replace(settings, target_accept=target)
+        pick = lambda xs: [xs[i] for i in items]
+        seeds_k = [attempt_seed(seeds[i], k) for i in items]
+        return _chains(
+            run_number, program, pick(datas), pick(starts), pick(covs), at, seeds_k, done if k == 0 else None
+        )
+
+    def divergences(out: NutsDraws) -> tuple[int, int]:
+        return int(out.diverging.sum()), int(out.diverging.size)
+
+    policy = (settings.target_accept, settings.retry_target_accept)
+    return [
+        r.out._replace(first_divergences=r.first_divergences, rerun_at=r.rerun_at)
+        for r in with_retries(attempt, len(datas), *policy, divergences)
+    ]
+
+
+def _chains(run_number, program, datas, starts, covs, settings, seeds, done) -> list[NutsDraws]:
+    """One attempt: every (dataset, chain) pair on the chains' thread pool, one compiled chain program."""
     n = settings.chains
     run = _compiled(
         program, (settings.dense_mass, settings.target_accept, settings.max_tree_depth, settings.warmup, settings.draws)
@@ -182,7 +213,7 @@ def _run_many(program, datas, starts, covs, settings, seeds, done) -> list[NutsD
         chol = jnp.asarray(covariance_factor(np.asarray(cov)))
         center = jnp.asarray(start)
         first = len(jobs)
-        jobs += [(first + c, keys[c], 0.5 * jitter[c], data, center, chol) for c in range(n)]
+        jobs += [(run_number, first + c, keys[c], 0.5 * jitter[c], data, center, chol) for c in range(n)]
 
     finished, lock = [0] * len(datas), threading.Lock()
 
@@ -195,39 +226,11 @@ def _run_many(program, datas, starts, covs, settings, seeds, done) -> list[NutsD
                     done(sum(f == n for f in finished))
         return out
 
-    pool = ThreadPoolExecutor(max_workers=max(1, min(len(jobs), os.cpu_count() or 1)))
-    try:
-        chains = list(pool.map(one, range(len(jobs))))
-    except BaseException:  # Ctrl-C: do not wait for the running chains (a chain cannot be interrupted)
-        pool.shutdown(wait=False, cancel_futures=True)
-        raise
-    pool.shutdown()
+    chains = map_chains(one, len(jobs))
 
     def stacked(i: int) -> NutsDraws:  # dataset i's chains: (chain, draw, ...) of each output
         per = chains[i * n : (i + 1) * n]
         z, diverging, steps, accept, energy, step = (np.stack([np.asarray(c[k]) for c in per]) for k in range(6))
         return NutsDraws(z, diverging, steps, accept, energy, step)
 
-    outs = [stacked(i) for i in range(len(datas))]
-    # divergences: rerun those datasets with smaller steps (the one retry policy, inference.chains.retry_target);
-    # the target depends on the settings alone, so every dataset that is rerun gets the same one
-    policy = (settings.target_accept, settings.retry_target_accept)
-    targets = {i: retry_target(*policy, float(o.diverging.mean())) for i, o in enumerate(outs)}
-    again = [i for i, t in targets.items() if t is not None]
-    if again:
-        target = targets[again[0]]
-        assert target is not None
-        retry = replace(settings, target_accept=target, retry_target_accept=target)
-        redo = _run_many(
-            program,
-            [datas[i] for i in again],
-            [starts[i] for i in again],
-            [covs[i] for i in again],
-            retry,
-            [seeds[i] for i in again],
-            None,
-        )
-        for i, out in zip(again, redo, strict=True):
-            first = outs[i].first_divergences or int(outs[i].diverging.sum())
-            outs[i] = out._replace(first_divergences=first, rerun_at=out.rerun_at or target)
-    return outs
+    return [stacked(i) for i in range(len(datas))]

@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -29,22 +29,65 @@ from numpyro.infer.util import constrain_fn, log_likelihood, potential_energy, u
 from bayescal._config import computes
 from bayescal.model.assemble import CalibrationModel
 
-__all__ = ["Program", "program_for", "program_of", "clear_program_cache"]
+__all__ = ["Objective", "Program", "Smooth", "program_for", "program_of", "clear_program_cache"]
 
 #: programs kept in memory, the most recently used: a diagnosis tries ~16 structures once each, and
 #: keeping them all held 1.8 GB where 8 hold 1.4 GB at the same speed (a structure evicted and fitted
 #: again is traced again; its compilation comes from the persistent cache)
 _MAX_PROGRAMS = 8
-_CACHE: OrderedDict[tuple, Program] = OrderedDict()
+
+
+class _Programs(OrderedDict):
+    """The cached programs, most recently used last; ``cache_clear`` as an ``lru_cache`` has, so
+    :func:`bayescal._caches.clear_caches` forgets them with every other cache of the package."""
+
+    def cache_clear(self) -> None:
+        self.clear()
+
+
+_CACHE: _Programs = _Programs()
 
 
 def clear_program_cache() -> None:
     """Forget the cached programs (see :func:`bayescal._caches.clear_caches`)."""
-    _CACHE.clear()
+    _CACHE.cache_clear()
 
 
 #: a program's data: any pytree of arrays (a calibration's ``ModelData``, a film's or a regression's tuple)
 ProgramData = Any
+
+
+class Smooth(Protocol):
+    """What a mode search needs of a potential (:func:`bayescal.inference.laplace.find_map`): a
+    :class:`Program` is one, and so is an :class:`Objective` built from any potential (the fleet's)."""
+
+    @property
+    def potential(self) -> Callable:
+        """``potential(z, data)``: minus the log density; the same object for one structure."""
+        ...
+
+    @property
+    def value_and_grad(self) -> Callable:
+        """Its value and gradient in ``z``."""
+        ...
+
+    @property
+    def hessian(self) -> Callable:
+        """Its Hessian in ``z``."""
+        ...
+
+
+class Objective(NamedTuple):
+    """A potential ``potential(z, data)`` with its value-and-gradient and Hessian, jitted (:class:`Smooth`)."""
+
+    potential: Callable
+    value_and_grad: Callable
+    hessian: Callable
+
+    @classmethod
+    def of(cls, potential: Callable) -> Objective:
+        """The objective of ``potential`` (compile once per structure: cache the result per potential)."""
+        return cls(potential, jax.jit(jax.value_and_grad(potential)), jax.jit(jax.hessian(potential)))
 
 
 @dataclass(frozen=True, eq=False)

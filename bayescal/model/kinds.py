@@ -5,24 +5,27 @@
 TOML names its kind (``kind = "film"``); :func:`bayescal.load_spec`, :func:`bayescal.fit`,
 :meth:`bayescal.Calibration.load`, :func:`bayescal.invert` and the report dispatch on it, so the
 command line has no branch per kind.  Each kind other than the camera's is a module with
-``spec_from_dict``, ``load_table``, ``fit``, ``load_posterior`` and ``write_report``, found by
-name here (imported on first use: the kinds sit above the model in the layers).
+``spec_from_dict``, ``load_table``, ``fit``, ``load_posterior`` and ``write_report``, registered by
+its own package through the package metadata (:mod:`bayescal.model.plugins`; the kinds sit above the
+model in the layers, so the model names none of them).
 """
 
 from __future__ import annotations
 
-import importlib
 from types import ModuleType
 from typing import Any
 
-from bayescal.errors import SpecError
+from bayescal.model import plugins
 
-__all__ = ["CALIBRATION", "KINDS", "kind_of", "get"]
+__all__ = ["CALIBRATION", "kind_of", "get", "names"]
 
 #: the camera model's kind (this package), the default
 CALIBRATION = "calibration"
-#: the other kinds: name -> the module with their entry points
-KINDS: dict[str, str] = {"film": "bayescal.film.kind"}
+
+
+def names() -> tuple[str, ...]:
+    """Every model kind: the camera's, then the registered ones."""
+    return (CALIBRATION, *plugins.names(plugins.KIND_GROUP))
 
 
 def kind_of(obj: Any) -> str:
@@ -31,10 +34,8 @@ def kind_of(obj: Any) -> str:
 
 
 def get(kind: str) -> ModuleType:
-    """The entry points of a kind other than ``calibration``."""
-    if kind not in KINDS:
-        raise SpecError(f"unknown model kind '{kind}'; expected one of {[CALIBRATION, *KINDS]}")
-    return importlib.import_module(KINDS[kind])
+    """The entry points of a kind other than ``calibration`` (the module its package registered)."""
+    return plugins.load(plugins.KIND_GROUP, kind, "model kind")
 
 
 def load_table(spec: Any, path):

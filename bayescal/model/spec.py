@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import importlib
 import os
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -19,7 +18,7 @@ from typing import Any, Literal
 from bayescal.errors import SpecError
 from bayescal.io.limits import limit
 from bayescal.io.toml import build, dumps, read_toml
-from bayescal.model import kinds
+from bayescal.model import kinds, plugins
 from bayescal.model.components import EFFECTS
 from bayescal.model.components.dark import DarkSpec
 from bayescal.model.components.noise import NoiseSpec
@@ -38,7 +37,7 @@ __all__ = [
     "SaturationSpec",
     "SettingsSpec",
     "InferenceSpec",
-    "SECTIONS",
+    "section_names",
     "section_class",
     "load_spec",
 ]
@@ -126,7 +125,7 @@ class ModelSpec:
         The sections of the optional effects (:data:`bayescal.model.components.EFFECTS`), one per
         registered effect, by section name (``[responsivity]`` in TOML); :meth:`effect` reads one.
     sections : tuple of (str, section)
-        The sections that packages above the model own (:data:`SECTIONS`: ``[fleet]``), as given;
+        The sections that packages above the model own (:func:`section_names`: ``[fleet]``), as given;
         :meth:`section` reads one (its defaults where not given), ``spec.fleet`` the fleet's.
     """
 
@@ -159,7 +158,7 @@ class ModelSpec:
         return dict(self.effects)[section]
 
     def section(self, name: str) -> Any:
-        """The section ``name`` of :data:`SECTIONS` (its defaults where the spec does not give it)."""
+        """The registered section ``name`` (:func:`section_names`) (its defaults where the spec does not give it)."""
         given = dict(self.sections)
         return given[name] if name in given else section_class(name)()
 
@@ -185,7 +184,9 @@ class ModelSpec:
             if e.section in data
         )
         sections = tuple(
-            (name, build(section_class(name), data.pop(name), source, name + ".")) for name in SECTIONS if name in data
+            (name, build(section_class(name), data.pop(name), source, name + "."))
+            for name in section_names()
+            if name in data
         )
         spec = build(cls, data, source)
         return dataclasses.replace(spec, effects=effects, sections=sections) if effects or sections else spec
@@ -209,7 +210,7 @@ class ModelSpec:
         for key, value in sections.items():
             if key in effects:
                 current = effects[key]
-            elif key in SECTIONS:
+            elif key in section_names():
                 current = self.section(key)
             else:
                 current = getattr(self, key)
@@ -217,7 +218,7 @@ class ModelSpec:
                 value = dataclasses.replace(current, **value)
             if key in effects:
                 effects[key] = value
-            elif key in SECTIONS:
+            elif key in section_names():
                 owned[key] = value
             else:
                 changes[key] = value
@@ -226,20 +227,20 @@ class ModelSpec:
     def structure_key(self) -> str:
         """Hash of everything that changes the model's structure (not sampler settings)."""
         d = self.to_dict()
-        for key in ("name", "description", "inference", *SECTIONS):
+        for key in ("name", "description", "inference", *section_names()):
             d.pop(key, None)
         return hashlib.sha1(dumps(d).encode()).hexdigest()[:16]
 
 
-#: sections of a spec that packages above the model own: name -> "module:class" (imported on first use, as
-#: the model kinds are: :mod:`bayescal.model.kinds`)
-SECTIONS: dict[str, str] = {"fleet": "bayescal.fleet.spec:FleetSpec"}
+def section_names() -> tuple[str, ...]:
+    """The spec sections that packages above the model own (``[fleet]``), registered through the package
+    metadata (:mod:`bayescal.model.plugins`)."""
+    return plugins.names(plugins.SECTION_GROUP)
 
 
 def section_class(name: str) -> type:
-    """The dataclass of the registered section ``name`` (:data:`SECTIONS`)."""
-    module, cls = SECTIONS[name].split(":")
-    return getattr(importlib.import_module(module), cls)
+    """The dataclass of the registered section ``name`` (:func:`section_names`)."""
+    return plugins.load(plugins.SECTION_GROUP, name, "spec section")
 
 
 def _renamed(data: dict[str, Any]) -> dict[str, Any]:

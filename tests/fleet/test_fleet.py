@@ -28,6 +28,7 @@ from bayescal.fleet.model import (
 )
 from bayescal.fleet.spec import FleetSpec
 from bayescal.fleet.units import fleet_from_frame
+from bayescal.inference.chains import Phased
 from bayescal.model.spec import InferenceSpec
 from bayescal.validation.fleet import SMALL_FLEET, FleetDesign, simulate_fleet
 from tests.conftest import MODELS
@@ -422,7 +423,7 @@ def test_chains_with_a_divergence_are_run_again_at_the_retry_target(small_fleet,
     def chains(plan_, spec_, args, seed, inference):
         targets.append(spec_.target_accept)
         draws = np.log(0.5) + 0.1 * np.random.default_rng(seed).standard_normal((2, 20, dim))
-        return draws, 3 - 3 * (len(targets) > 1), 1000
+        return Phased(draws, 3 - 3 * (len(targets) > 1), 1000)
 
     monkeypatch.setattr(sampling, "_run_chains", chains)
     out = sampling.sample_fleet(data, plan, spec, seed=1, inference=InferenceSpec(retry_target_accept=0.97))
@@ -435,10 +436,10 @@ def test_chains_with_a_divergence_are_run_again_at_the_retry_target(small_fleet,
 
 
 def test_a_few_divergences_left_after_the_retry_get_the_last_run(small_fleet, monkeypatch):
-    """The one retry policy (inference.chains.retry_target), as a unit's fit has it: 1 divergence in 100
+    """The one retry loop (inference.chains.with_retries), as a unit's fit has it: 1 divergence in 100
     draws after the retry (under 2 %) gets one last run at 0.99, with new chains (its own seed)."""
     import bayescal.fleet.sampling as sampling
-    from bayescal.inference.chains import LAST_RETRY_ACCEPT
+    from bayescal.inference.chains import LAST_RETRY_ACCEPT, attempt_seed
 
     fleet = fleet_from_frame(_frame(small_fleet), source="small")
     data, plan = fleet_data(_Fits(fleet, 2, np.random.default_rng(1)), FleetSpec(walk=False), 0.03)
@@ -450,11 +451,12 @@ def test_a_few_divergences_left_after_the_retry_get_the_last_run(small_fleet, mo
     def chains(plan_, spec_, args, seed, inference):
         runs.append((spec_.target_accept, seed))
         draws = np.log(0.5) + 0.1 * np.random.default_rng(seed).standard_normal((2, 50, dim))
-        return draws, left[spec_.target_accept], 1000
+        return Phased(draws, left[spec_.target_accept], 1000)
 
     monkeypatch.setattr(sampling, "_run_chains", chains)
     out = sampling.sample_fleet(data, plan, spec, seed=1, inference=InferenceSpec(retry_target_accept=0.95))
-    assert runs == [(spec.target_accept, 1), (0.95, 2), (LAST_RETRY_ACCEPT, 3)]
+    seeds = [attempt_seed(1, k) for k in range(3)]  # the one seed rule of every rerun
+    assert runs == list(zip([spec.target_accept, 0.95, LAST_RETRY_ACCEPT], seeds, strict=True))
     assert out.diagnostics["first_divergences"] == 3 and out.diagnostics["retried_at"] == LAST_RETRY_ACCEPT
     assert out.diagnostics["divergences"] == 0 and out.diagnostics["gradients"] == 3000
 

@@ -17,7 +17,7 @@ def _stand_in(left_at_retry: float):
     def compiled(program, settings):
         _, target, _, _, draws = settings
 
-        def run(index, key, w0, data, center, chol):
+        def run(run_number, index, key, w0, data, center, chol):
             diverging = np.arange(draws) < round(fraction[target] * draws)
             zeros = np.zeros(draws)
             return np.zeros((draws, DIM)), diverging, zeros + 3, zeros + target, zeros, zeros + 0.1
@@ -38,7 +38,7 @@ def _stand_in(left_at_retry: float):
 def test_a_last_rerun_only_for_a_few_divergences(monkeypatch, left, final_target, final_divergences):
     monkeypatch.setattr(nuts, "_compiled", _stand_in(left))
     settings = InferenceSpec(chains=4, draws=DRAWS, warmup=10, target_accept=0.8, retry_target_accept=0.95)
-    (out,) = nuts._run_many(None, [None], [np.zeros(DIM)], [np.eye(DIM)], settings, [0], None)
+    (out,) = nuts._run_many(1, None, [None], [np.zeros(DIM)], [np.eye(DIM)], settings, [0], None)
     assert out.first_divergences == 4 * 60  # the first run's count is what the verdict reports as retried
     assert out.rerun_at == pytest.approx(final_target)
     assert int(out.diverging.sum()) == final_divergences
@@ -60,3 +60,41 @@ def test_a_last_rerun_only_for_a_few_divergences(monkeypatch, left, final_target
 def test_the_one_retry_policy(target, retry, fraction, expected):
     """What a camera's NUTS fit and the fleet's stage two both decide by."""
     assert chains.retry_target(target, retry, fraction) == expected
+
+
+def test_the_retry_loop_reruns_only_the_items_that_diverged():
+    """Items run together; those that diverged are rerun, together, at the policy's target, with new seeds."""
+    calls = []
+
+    def run(items, target, attempt):
+        calls.append((list(items), target, attempt))
+        # item 1 diverges in 5 % of its draws at the first target, 1 % at the retry, none at the last
+        left = {0.8: 50, 0.95: 10, chains.LAST_RETRY_ACCEPT: 0}[target]
+        return [(left if i == 1 else 0, target) for i in items]
+
+    out = chains.with_retries(run, 3, 0.8, 0.95, lambda o: (o[0], 1000))
+    assert calls == [([0, 1, 2], 0.8, 0), ([1], 0.95, 1), ([1], chains.LAST_RETRY_ACCEPT, 2)]
+    assert [o.out[1] for o in out] == [0.8, chains.LAST_RETRY_ACCEPT, 0.8]
+    assert [o.first_divergences for o in out] == [0, 50, 0]
+    assert [o.rerun_at for o in out] == [0.0, chains.LAST_RETRY_ACCEPT, 0.0]
+
+
+def test_a_rerun_seed_is_new_and_reproducible():
+    seeds = [chains.attempt_seed(s, k) for s in range(20) for k in range(3)]
+    assert chains.attempt_seed(7, 0) == 7 and chains.attempt_seed(7, 1) == chains.attempt_seed(7, 1)
+    assert len(set(seeds)) == len(seeds)  # no rerun reuses another dataset's (or attempt's) chains
+
+
+def test_each_run_reports_to_its_own_progress_channel():
+    """Two runs in flight at once: each compiled chain's callback reaches its own run's listener only."""
+    heard = {1: [], 2: []}
+    nuts._RUNS[101] = nuts._Progress(heard[1].append, 2)
+    nuts._RUNS[102] = nuts._Progress(heard[2].append, 1)
+    try:
+        nuts._report(101, 0, 49)
+        nuts._report(102, 0, 49)
+        nuts._report(101, 1, 99)
+        nuts._report(103, 0, 49)  # a run nobody listens to
+    finally:
+        nuts._RUNS.pop(101), nuts._RUNS.pop(102)
+    assert heard == {1: [0, 50], 2: [50]}  # the slowest chain of each run

@@ -259,3 +259,10 @@ def test_every_component_fills_a_place_of_the_equation():
 
     assert sorted(c.role for c in CORE) == sorted(ROLES)
     assert {e.role for e in EFFECTS} == {"factor", "offset"}
+
+
+def test_the_turning_point_of_a_vanishing_curvature():
+    """A curvature so small that the companion matrix overflows (found by the inverse's property test):
+    the response rises for ever in range, and a tiny negative one turns where its closed form says."""
+    turn = Response.turning_point(np.array([[1.0, 1.1e-308], [1.0, 0.0], [1.0, -1e-300], [1.0, -0.25]]))
+    np.testing.assert_allclose(turn, [np.inf, np.inf, 0.5e300, 2.0], rtol=1e-12)

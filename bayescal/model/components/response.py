@@ -178,7 +178,12 @@ class Response(Component):
         top = slope[..., -1]
         ok = top != 0
         companion = np.zeros(coef.shape[:-1] + (n - 1, n - 1))
-        companion[..., 0, :] = -slope[..., -2::-1] / np.where(ok, top, 1.0)[..., None]
+        with np.errstate(over="ignore"):
+            first = -slope[..., -2::-1] / np.where(ok, top, 1.0)[..., None]
+        # a leading coefficient so small against the rest that the companion overflows puts every root
+        # beyond any float: the polynomial rises for ever in range
+        ok = ok & np.all(np.isfinite(first), axis=-1)
+        companion[..., 0, :] = np.where(ok[..., None], first, 0.0)
         if n > 2:
             companion[..., np.arange(1, n - 1), np.arange(n - 2)] = 1.0
         roots = np.linalg.eigvals(companion)
