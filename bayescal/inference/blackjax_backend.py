@@ -12,20 +12,18 @@ is the whole backend: it registers itself under ``blackjax`` when imported
 
 from __future__ import annotations
 
-import os
-import threading
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
 from bayescal._config import computes
-from bayescal.inference.diagnostics import mcmc_diagnostics
-from bayescal.inference.laplace import covariance_factor
+from bayescal.inference.chains import map_chains, progress_channel, report
+from bayescal.inference.diagnostics import Diagnostics, mcmc_diagnostics
+from bayescal.inference.laplace import LaplaceResult, covariance_factor
 from bayescal.inference.program import Program
-from bayescal.inference.registry import SHIPPED, Draws, OneByOne, register
+from bayescal.inference.registry import SHIPPED, Draws, OneByOne, Progress, Sampled, Stage, Tuned, register
 from bayescal.inference.samplers import chains_dataset
 
 __all__ = ["BlackjaxNutsBackend", "run_blackjax"]
@@ -34,36 +32,17 @@ __all__ = ["BlackjaxNutsBackend", "run_blackjax"]
 _EVERY = 50
 
 
-class _Tracker:
-    """Progress of the running chains (the slowest one), fed from inside the programs."""
-
-    active: _Tracker | None = None
-
-    def __init__(self, callback: Callable | None, chains: int, warmup: int):
-        self.callback, self.done, self.warmup, self.lock = callback, [0] * chains, warmup, threading.Lock()
-
-    @staticmethod
-    def report(chain, i):
-        self = _Tracker.active
-        if self is None or self.callback is None:
-            return
-        with self.lock:
-            self.done[int(chain)] = self.warmup + int(i) + 1
-            slowest = min(self.done)
-        self.callback(slowest)
-
-
 @lru_cache(maxsize=16)
 def _compiled(program: Program, settings: tuple):
-    """``run(index, key, w0, data, center, chol)``: one chain's warmup and draws, compiled once
-    (progress is reported every 50 draws by a host callback, the warmup as one step)."""
+    """``run(run_number, index, key, w0, data, center, chol)``: one chain's warmup and draws, compiled once
+    (progress is reported every 50 draws to the run's channel, the warmup as one step)."""
     import blackjax
     import jax
     import jax.numpy as jnp
 
     target, depth, warmup, draws = settings
 
-    def chain(index, key, w0, data, center, chol):
+    def chain(run, index, key, w0, data, center, chol):
         def logdensity(w):
             return -program.potential(center + chol @ w, data)
 
@@ -76,7 +55,7 @@ def _compiled(program: Program, settings: tuple):
 
         def draw(s, xs):
             i, k = xs
-            jax.lax.cond(i % _EVERY == _EVERY - 1, lambda: jax.debug.callback(_Tracker.report, index, i), lambda: None)
+            jax.lax.cond(i % _EVERY == _EVERY - 1, lambda: jax.debug.callback(report, run, index, i), lambda: None)
             s, info = step(k, s)
             stats = (info.is_divergent, info.num_integration_steps, info.acceptance_rate, info.energy)
             return s, (center + chol @ s.position,) + stats
@@ -102,19 +81,8 @@ def run_blackjax(program: Program, data, start, cov, settings, seed: int, progre
     chol = jnp.asarray(covariance_factor(np.asarray(cov)))
     center = jnp.asarray(start)
 
-    def one(c):
-        return jax.device_get(run(c, keys[c], jitter[c], data, center, chol))
-
-    _Tracker.active = _Tracker(progress, n, settings.warmup)
-    pool = ThreadPoolExecutor(max_workers=max(1, min(n, os.cpu_count() or 1)))
-    try:
-        chains = list(pool.map(one, range(n)))
-    except BaseException:  # Ctrl-C: do not wait for the running chains
-        pool.shutdown(wait=False, cancel_futures=True)
-        raise
-    finally:
-        _Tracker.active = None
-    pool.shutdown()
+    with progress_channel(progress, n, settings.warmup) as number:
+        chains = map_chains(lambda c: jax.device_get(run(number, c, keys[c], jitter[c], data, center, chol)), n)
     z, diverging, steps, accept, energy = (np.stack([np.asarray(c[k]) for c in chains]) for k in range(5))
     stats = {"diverging": diverging, "tree_steps": steps, "accept_prob": accept, "energy": energy}
     return Draws(z, int(diverging.sum()), stats)
@@ -127,12 +95,16 @@ class BlackjaxNutsBackend(OneByOne):
     name: str = "blackjax"
     batched: bool = SHIPPED["blackjax"].batched
 
-    def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
+    def sample(
+        self, model: Sampled, program: Program, mode: LaplaceResult, seed: int, progress: Progress | None, stage: Stage
+    ) -> Draws:
         inf = model.spec.inference
         stage(f"sampling: BlackJAX NUTS, {inf.chains} chains x ({inf.warmup} warmup + {inf.draws} draws)")
         return run_blackjax(program, model.data, mode.mode, mode.cov, inf, seed, progress)
 
-    def verdict(self, draws: Draws, posterior: dict, spec, mode):
+    def verdict(
+        self, draws: Draws, posterior: Mapping[str, np.ndarray], spec: Tuned, mode: LaplaceResult
+    ) -> Diagnostics:
         return mcmc_diagnostics(chains_dataset(posterior), draws.divergences, spec.inference, draws.extra)
 
 

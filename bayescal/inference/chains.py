@@ -5,6 +5,10 @@ potential.
 chain runs); each is blocked on in its thread, so JAX's asynchronous dispatch does not queue them on one
 core; Ctrl-C returns at once (a running chain cannot be interrupted, and is not waited for).
 
+**Progress** (:func:`progress_channel`, :func:`report`).  A compiled chain reports its iterations by a
+host callback with its run's number (an argument of the program, so reporting costs no recompilation);
+each run listens on its own channel, so two fits in flight on two threads keep their progress apart.
+
 **Retries** (:func:`retry_target`).  Divergent transitions mark a region of high curvature (a scale
 near zero) that the adapted step size overshoots.  A run with any is run again, with new chains,
 at the spec's ``retry_target_accept`` (smaller steps); a run that already was that retry gets one
@@ -31,8 +35,11 @@ out, and step-only adaptation took 2.1x fewer gradient evaluations there
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import itertools
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from functools import lru_cache
 from typing import Any, NamedTuple
 
@@ -45,6 +52,8 @@ __all__ = [
     "Retried",
     "attempt_seed",
     "map_chains",
+    "progress_channel",
+    "report",
     "retry_target",
     "run_phases",
     "step_program",
@@ -78,6 +87,43 @@ def retry_target(target_accept: float, retry_target_accept: float, diverging_fra
             return None
         target = LAST_RETRY_ACCEPT
     return target if target > target_accept else None
+
+
+class _Channel:
+    """One run's progress: the iterations of each of its chains; the listener hears the slowest."""
+
+    def __init__(self, callback: Callable[[int], None], chains: int, offset: int):
+        self.callback, self.done, self.offset, self.lock = callback, [0] * chains, offset, threading.Lock()
+
+    def tick(self, chain: int, i: int) -> None:
+        with self.lock:
+            self.done[chain] = self.offset + i + 1
+            slowest = min(self.done)
+        self.callback(slowest)
+
+
+_CHANNELS: dict[int, _Channel] = {}
+_NUMBERS = itertools.count(1)
+
+
+@contextmanager
+def progress_channel(callback: Callable[[int], None] | None, chains: int, offset: int = 0) -> Iterator[int]:
+    """A run's number, its chains' iterations reported to ``callback`` (the slowest chain's count plus
+    ``offset``, e.g. a warmup already done) while the block runs; None: nobody listens."""
+    number = next(_NUMBERS)
+    if callback is not None:
+        _CHANNELS[number] = _Channel(callback, chains, offset)
+    try:
+        yield number
+    finally:
+        _CHANNELS.pop(number, None)
+
+
+def report(run: Any, chain: Any, i: Any) -> None:
+    """The chains' host callback: iteration ``i`` of ``chain`` in run ``run`` (unheard when nobody listens)."""
+    channel = _CHANNELS.get(int(run))
+    if channel is not None:
+        channel.tick(int(chain), int(i))
 
 
 def attempt_seed(seed: int, attempt: int) -> int:

@@ -14,8 +14,8 @@ no recompilation.
 
 from __future__ import annotations
 
-import itertools
 import threading
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from functools import lru_cache
 from typing import NamedTuple
@@ -26,7 +26,7 @@ import numpy as np
 from numpyro.infer.hmc import hmc
 
 from bayescal._config import computes
-from bayescal.inference.chains import attempt_seed, map_chains, with_retries
+from bayescal.inference.chains import attempt_seed, map_chains, progress_channel, report, with_retries
 from bayescal.inference.laplace import covariance_factor
 from bayescal.inference.program import Program, ProgramData
 from bayescal.model.spec import InferenceSpec
@@ -52,31 +52,6 @@ class NutsDraws(NamedTuple):
 _EVERY = 50
 
 
-class _Progress:
-    """Host-side progress of one run's concurrently running chains (reports the slowest chain)."""
-
-    def __init__(self, callback, chains: int):
-        self.callback, self.done, self.lock = callback, [0] * chains, threading.Lock()
-
-    def tick(self, chain: int, i: int) -> None:
-        with self.lock:
-            self.done[chain] = i + 1
-            slowest = min(self.done)
-        self.callback(slowest)
-
-
-#: the progress channel of every run in flight, by run number (each compiled chain reports to its run's)
-_RUNS: dict[int, _Progress] = {}
-_RUN_NUMBERS = itertools.count(1)
-
-
-def _report(run, chain, i) -> None:
-    """The chains' host callback: the iteration ``i`` of ``chain`` in run ``run`` (none: nobody listens)."""
-    channel = _RUNS.get(int(run))
-    if channel is not None:
-        channel.tick(int(chain), int(i))
-
-
 @lru_cache(maxsize=32)
 def _compiled(program: Program, settings: tuple):
     """``run(run_number, chain_index, key, w0, data, center, chol)``: one chain, init + warmup + draws,
@@ -99,7 +74,7 @@ def _compiled(program: Program, settings: tuple):
         )
 
         def tick(i):
-            jax.lax.cond(i % _EVERY == _EVERY - 1, lambda: jax.debug.callback(_report, run, index, i), lambda: None)
+            jax.lax.cond(i % _EVERY == _EVERY - 1, lambda: jax.debug.callback(report, run, index, i), lambda: None)
 
         def warm(s, i):
             tick(i)
@@ -150,14 +125,14 @@ def run_nuts(
 @computes
 def run_nuts_many(
     program: Program,
-    datas: list[ProgramData],
-    starts: list[jax.Array],
-    covs: list[np.ndarray],
+    datas: Sequence[ProgramData],
+    starts: Sequence[jax.Array | np.ndarray],
+    covs: Sequence[np.ndarray],
     settings: InferenceSpec,
-    seeds: list[int],
-    done=None,
+    seeds: Sequence[int],
+    done: Callable[[int], None] | None = None,
     *,
-    iterations=None,
+    iterations: Callable[[int], None] | None = None,
 ) -> list[NutsDraws]:
     """:func:`run_nuts` for many datasets of one structure: one compiled chain program, every
     (dataset, chain) pair queued on one thread pool, so all cores stay busy.
@@ -168,13 +143,8 @@ def run_nuts_many(
     ``done(n)`` is called as datasets finish; ``iterations(k)`` every 50 iterations of the
     slowest chain (warmup included).
     """
-    run = next(_RUN_NUMBERS)
-    if iterations is not None:
-        _RUNS[run] = _Progress(iterations, settings.chains * len(datas))
-    try:
+    with progress_channel(iterations, settings.chains * len(datas)) as run:
         return _run_many(run, program, datas, starts, covs, settings, seeds, done)
-    finally:
-        _RUNS.pop(run, None)
 
 
 def _run_many(run_number, program, datas, starts, covs, settings, seeds, done) -> list[NutsDraws]:

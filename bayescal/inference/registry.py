@@ -16,14 +16,23 @@ accepts it by name beside these (:data:`BASELINE`).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple, Protocol
+from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from bayescal.inference.diagnostics import Diagnostics
+    from bayescal.inference.laplace import LaplaceResult
+    from bayescal.inference.program import Program, ProgramData
+    from bayescal.model.spec import InferenceSpec
 
 __all__ = [
     "Draws",
     "Backend",
+    "Sampled",
+    "Tuned",
     "OneByOne",
     "Shipped",
     "SHIPPED",
@@ -50,13 +59,37 @@ class Draws:
     extra: dict = field(default_factory=dict)  # diagnostics entries
 
 
+class Tuned(Protocol):
+    """A spec with sampler settings: a camera's :class:`~bayescal.model.spec.ModelSpec` or a film's."""
+
+    @property
+    def inference(self) -> InferenceSpec: ...
+
+
+class Sampled(Protocol):
+    """What a backend samples: one dataset of a model (a camera's
+    :class:`~bayescal.model.assemble.CalibrationModel`, a film band's model), its data the program's
+    argument and its spec's ``[inference]`` the sampler's settings."""
+
+    @property
+    def data(self) -> ProgramData: ...
+
+    @property
+    def spec(self) -> Tuned: ...
+
+
+#: ``progress(datasets_done)`` or ``iterations(iterations_done)``
+Progress = Callable[[int], None]
+#: ``stage(message)``: what the run is doing now, in words
+Stage = Callable[[str], None]
+
+
 class Backend(Protocol):
     """A posterior sampler.
 
-    ``sample_many(models, program, modes, seeds, progress=, iterations=, stage=)`` returns one
-    :class:`Draws` per dataset (``progress(datasets_done)``; ``iterations(done)`` reports a single
-    dataset's sampler iterations); ``verdict(draws, posterior, spec, mode)`` judges one dataset's
-    draws (a :class:`~bayescal.inference.diagnostics.Diagnostics`).
+    ``sample_many`` returns one :class:`Draws` per dataset (``progress(datasets_done)``;
+    ``iterations(done)`` reports a single dataset's sampler iterations); ``verdict`` judges one
+    dataset's draws (``posterior``: its constrained sites ``(chain, draw, ...)``).
     """
 
     @property
@@ -68,25 +101,47 @@ class Backend(Protocol):
         ...
 
     def sample_many(
-        self, models, program, modes, seeds, *, progress=None, iterations=None, stage=None
+        self,
+        models: Sequence[Sampled],
+        program: Program,
+        modes: Sequence[LaplaceResult],
+        seeds: Sequence[int],
+        *,
+        progress: Progress | None = None,
+        iterations: Progress | None = None,
+        stage: Stage | None = None,
     ) -> list[Draws]: ...
 
-    def verdict(self, draws: Draws, posterior: dict, spec, mode): ...
+    def verdict(
+        self, draws: Draws, posterior: Mapping[str, np.ndarray], spec: Tuned, mode: LaplaceResult
+    ) -> Diagnostics: ...
 
 
 class OneByOne:
     """``sample_many`` for a backend that samples one dataset at a time with
     ``sample(model, program, mode, seed, iterations, stage)``."""
 
-    def sample(self, model, program, mode, seed: int, progress, stage) -> Draws:
+    def sample(
+        self, model: Sampled, program: Program, mode: LaplaceResult, seed: int, progress: Progress | None, stage: Stage
+    ) -> Draws:
         """One dataset's draws (``progress(iterations_done)`` or None; ``stage(message)``)."""
         raise NotImplementedError
 
-    def sample_many(self, models, program, modes, seeds, *, progress=None, iterations=None, stage=None) -> list[Draws]:
-        stage = stage or (lambda message: None)
+    def sample_many(
+        self,
+        models: Sequence[Sampled],
+        program: Program,
+        modes: Sequence[LaplaceResult],
+        seeds: Sequence[int],
+        *,
+        progress: Progress | None = None,
+        iterations: Progress | None = None,
+        stage: Stage | None = None,
+    ) -> list[Draws]:
+        say: Stage = stage or (lambda message: None)
         out = []
         for i, (model, mode, seed) in enumerate(zip(models, modes, seeds, strict=True)):
-            out.append(self.sample(model, program, mode, seed, iterations if len(models) == 1 else None, stage))
+            out.append(self.sample(model, program, mode, seed, iterations if len(models) == 1 else None, say))
             if progress is not None:
                 progress(i + 1)
         return out

@@ -7,7 +7,7 @@ coordinates whitened by its covariance, emcee starts its walkers around it.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,9 +15,10 @@ import xarray as xr
 
 from bayescal.inference.diagnostics import Diagnostics, mcmc_diagnostics
 from bayescal.inference.emcee_backend import run_emcee
-from bayescal.inference.laplace import integrated_draws, laplace_draws
+from bayescal.inference.laplace import LaplaceResult, integrated_draws, laplace_draws
 from bayescal.inference.nuts import run_nuts_many
-from bayescal.inference.registry import SHIPPED, Draws, OneByOne, register
+from bayescal.inference.program import Program
+from bayescal.inference.registry import SHIPPED, Draws, OneByOne, Progress, Sampled, Stage, Tuned, register
 
 __all__ = [
     "LaplaceBackend",
@@ -120,7 +121,7 @@ def nuts_stats(out) -> dict:
     }
 
 
-def chains_dataset(posterior: dict) -> xr.Dataset:
+def chains_dataset(posterior: Mapping[str, np.ndarray]) -> xr.Dataset:
     """Physical draws ``(chain, draw, ...)`` for R-hat and ESS; the reference constants left out."""
     return xr.Dataset(
         {
@@ -138,14 +139,18 @@ class LaplaceBackend(OneByOne):
     name: str = "laplace"
     batched: bool = SHIPPED["laplace"].batched
 
-    def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
+    def sample(
+        self, model: Sampled, program: Program, mode: LaplaceResult, seed: int, progress: Progress | None, stage: Stage
+    ) -> Draws:
         extra: dict = {}
         z = laplace_z(model, program, mode, seed, extra)
         # only the totals are kept: a batch of many datasets (SBC) would otherwise hold every row's values
         extra["draws_far_off"] = far_fraction(np.asarray(program.loglik(z[0], model.data)), z.shape[-1])
         return Draws(z, extra=extra)
 
-    def verdict(self, draws: Draws, posterior: dict, spec, mode) -> Diagnostics:
+    def verdict(
+        self, draws: Draws, posterior: Mapping[str, np.ndarray], spec: Tuned, mode: LaplaceResult
+    ) -> Diagnostics:
         problems = laplace_problems(mode, draws.extra)
         return Diagnostics(not problems, tuple(problems), extra=draws.extra)
 
@@ -157,7 +162,17 @@ class NutsBackend:
     name: str = "nuts"
     batched: bool = SHIPPED["nuts"].batched
 
-    def sample_many(self, models, program, modes, seeds, *, progress=None, iterations=None, stage=None) -> list[Draws]:
+    def sample_many(
+        self,
+        models: Sequence[Sampled],
+        program: Program,
+        modes: Sequence[LaplaceResult],
+        seeds: Sequence[int],
+        *,
+        progress: Progress | None = None,
+        iterations: Progress | None = None,
+        stage: Stage | None = None,
+    ) -> list[Draws]:
         """Every (dataset, chain) pair on one thread pool (:func:`~bayescal.inference.nuts.run_nuts_many`)."""
         inf = models[0].spec.inference
         if stage is not None:
@@ -180,7 +195,9 @@ class NutsBackend:
             draws.append(Draws(out.z, int(out.diverging.sum()), nuts_stats(out), extra))
         return draws
 
-    def verdict(self, draws: Draws, posterior: dict, spec, mode) -> Diagnostics:
+    def verdict(
+        self, draws: Draws, posterior: Mapping[str, np.ndarray], spec: Tuned, mode: LaplaceResult
+    ) -> Diagnostics:
         return mcmc_diagnostics(chains_dataset(posterior), draws.divergences, spec.inference, draws.extra)
 
 
@@ -191,7 +208,9 @@ class EmceeBackend(OneByOne):
     name: str = "emcee"
     batched: bool = SHIPPED["emcee"].batched
 
-    def sample(self, model, program, mode, seed: int, progress: Callable | None, stage: Callable) -> Draws:
+    def sample(
+        self, model: Sampled, program: Program, mode: LaplaceResult, seed: int, progress: Progress | None, stage: Stage
+    ) -> Draws:
         inf = model.spec.inference
         stage(f"sampling: emcee, {inf.emcee_burn} burn-in + {inf.emcee_steps} steps")
         out = run_emcee(program, model.data, mode.mode, mode.cov, inf, seed, progress)
@@ -200,7 +219,9 @@ class EmceeBackend(OneByOne):
         )
         return Draws(out.z, extra=extra)
 
-    def verdict(self, draws: Draws, posterior: dict, spec, mode) -> Diagnostics:
+    def verdict(
+        self, draws: Draws, posterior: Mapping[str, np.ndarray], spec: Tuned, mode: LaplaceResult
+    ) -> Diagnostics:
         # walkers are not independent chains: judge ESS from the autocorrelation time
         n_eff, need = draws.extra["n_eff"], spec.inference.min_ess
         problems = () if n_eff >= need else (f"effective sample size {n_eff:.0f} < {need:.0f}",)

@@ -68,7 +68,7 @@ class Truth:
         Standard deviation of the per-level relative errors drawn.
     effects : dict
         Optional effect (spec section name) -> its true parameters, read by the effect's
-        ``true_factor`` (``[truth.effects.responsivity] coefficient_per_c = 0.003``).
+        ``truth`` (``[truth.effects.responsivity] coefficient_per_c = 0.003``).
     """
 
     response: dict[str, tuple[float, ...]]

@@ -21,7 +21,9 @@ from bayescal.model.components import (
     Component,
     Dark,
     Effect,
+    FactorEffect,
     Noise,
+    OffsetEffect,
     Response,
     Saturation,
     SettingFactors,
@@ -72,14 +74,14 @@ class Parts:
     def factors(self) -> tuple[StimulusFactor, ...]:
         """The factors on the effective stimulus besides the settings': the sphere's level errors, the
         factor effects."""
-        return (self.sphere, *(e for e in self.effects if e.role == "factor"))
+        return (self.sphere, *(e for e in self.effects if isinstance(e, FactorEffect)))
 
     def sample_offsets(self, data: ModelData):
         """Each offset term's level in the model's units (DN over full scale), sampled in turn: the dark
         level (a core term, sampled in those units), then each offset effect (sampled in DN)."""
         yield self.dark.sample(data)
         for term in self.effects:
-            if term.role == "offset":
+            if isinstance(term, OffsetEffect):
                 yield term.sample(data) / self.dark.dn_scale
 
     @property

@@ -25,7 +25,7 @@ from bayescal.errors import SpecError
 from bayescal.io.design import Design, Truth
 from bayescal.io.table import MeasurementTable
 from bayescal.model import observation
-from bayescal.model.components import Dark, Noise, Response, Sphere, effect
+from bayescal.model.components import Dark, Noise, OffsetEffect, Response, Sphere, effect
 from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.data import effective_stimulus
 from bayescal.model.equation import reading
@@ -203,10 +203,10 @@ def _effects(truth: Truth, rows: pd.DataFrame, spec: ModelSpec) -> tuple[np.ndar
             cls = effect(section)
         except KeyError:
             raise SpecError(f"[truth.effects] names '{section}', which is not a registered effect") from None
-        if cls.role == "offset":
-            added = added + cls.true_offset(params, rows, spec)
+        if issubclass(cls, OffsetEffect):
+            added = added + cls.truth(params, rows, spec)
         else:
-            factor = factor * cls.true_factor(params, rows, spec)
+            factor = factor * cls.truth(params, rows, spec)
     return factor, added
 
 

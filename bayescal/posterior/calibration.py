@@ -37,7 +37,7 @@ from bayescal.model.components import (
     Noise,
     OffsetTerm,
     Response,
-    effect_terms,
+    factor_terms,
     offset_terms,
 )
 from bayescal.model.components import rolloff as roll
@@ -489,7 +489,7 @@ def _calibrated_range(frame, spec: ModelSpec) -> CalibratedRange:
 
 def _factor_terms(spec: ModelSpec, draws: dict, frame, flat) -> tuple[FactorTerm, ...]:
     """The factors on the effective stimulus that predictions apply: the settings', then each factor effect's."""
-    return SettingFactors.terms(draws, frame, spec.reference, flat) + effect_terms(spec, draws, frame, "factor")
+    return SettingFactors.terms(draws, frame, spec.reference, flat) + factor_terms(spec, draws, frame)
 
 
 def _photon_transfer(frame, spec, dark: DarkTerm) -> tuple[float, float]:

@@ -86,15 +86,16 @@ def test_a_rerun_seed_is_new_and_reproducible():
 
 
 def test_each_run_reports_to_its_own_progress_channel():
-    """Two runs in flight at once: each compiled chain's callback reaches its own run's listener only."""
-    heard = {1: [], 2: []}
-    nuts._RUNS[101] = nuts._Progress(heard[1].append, 2)
-    nuts._RUNS[102] = nuts._Progress(heard[2].append, 1)
-    try:
-        nuts._report(101, 0, 49)
-        nuts._report(102, 0, 49)
-        nuts._report(101, 1, 99)
-        nuts._report(103, 0, 49)  # a run nobody listens to
-    finally:
-        nuts._RUNS.pop(101), nuts._RUNS.pop(102)
-    assert heard == {1: [0, 50], 2: [50]}  # the slowest chain of each run
+    """Two runs in flight at once: each compiled chain's callback reaches its own run's listener only, and a
+    run's channel closes with it."""
+    heard: dict[int, list[int]] = {1: [], 2: []}
+    with (
+        chains.progress_channel(heard[1].append, 2) as first,
+        chains.progress_channel(heard[2].append, 1, 10) as second,
+    ):
+        chains.report(first, 0, 49)
+        chains.report(second, 0, 49)
+        chains.report(first, 1, 99)
+        chains.report(first + second + 1, 0, 49)  # a run nobody listens to
+    chains.report(first, 0, 149)  # closed: nobody hears it
+    assert heard == {1: [0, 50], 2: [60]}  # the slowest chain of each run (the second after a warmup of 10)

@@ -259,6 +259,12 @@ def test_every_component_fills_a_place_of_the_equation():
 
     assert sorted(c.role for c in CORE) == sorted(ROLES)
     assert {e.role for e in EFFECTS} == {"factor", "offset"}
+    # an effect is a factor or an offset by its class, and its role says the same
+    from bayescal.model.components import FactorEffect, OffsetEffect
+
+    for e in EFFECTS:
+        assert issubclass(e, FactorEffect) != issubclass(e, OffsetEffect), e
+        assert e.role == ("factor" if issubclass(e, FactorEffect) else "offset"), e
 
 
 def test_the_turning_point_of_a_vanishing_curvature():

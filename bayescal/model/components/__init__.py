@@ -15,7 +15,16 @@ from typing import Any
 
 import numpy as np
 
-from bayescal.model.components.base import Component, Context, Effect, FactorTerm, OffsetTerm, StimulusFactor
+from bayescal.model.components.base import (
+    Component,
+    Context,
+    Effect,
+    FactorEffect,
+    FactorTerm,
+    OffsetEffect,
+    OffsetTerm,
+    StimulusFactor,
+)
 from bayescal.model.components.dark import Dark, DarkSpec, DarkTerm
 from bayescal.model.components.drift import OffsetDrift, StimulusDrift
 from bayescal.model.components.glow import Glow
@@ -32,6 +41,8 @@ __all__ = [
     "CORE",
     "EFFECTS",
     "Component",
+    "FactorEffect",
+    "OffsetEffect",
     "Context",
     "Dark",
     "DarkSpec",
@@ -50,7 +61,8 @@ __all__ = [
     "SphereSpec",
     "StimulusFactor",
     "effect",
-    "effect_terms",
+    "factor_terms",
+    "offset_effect_terms",
     "offset_terms",
     "reported_dims",
     "site_dims",
@@ -75,10 +87,16 @@ def effect(section: str) -> type[Effect]:
     return {e.section: e for e in EFFECTS}[section]
 
 
-def effect_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any, role: str) -> tuple[Any, ...]:
-    """The effects of one role (``"factor"`` or ``"offset"``) in a calibration's predictions, from the
-    reported draws ``(chain, draw, ...)`` and the table they were fitted to (:meth:`Effect.term`)."""
-    terms = (cls.term(spec.effect(cls.section), spec, draws, frame) for cls in EFFECTS if cls.role == role)
+def factor_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any) -> tuple[FactorTerm, ...]:
+    """The factor effects in a calibration's predictions, from the reported draws ``(chain, draw, ...)`` and
+    the table they were fitted to (:meth:`FactorEffect.term`)."""
+    terms = (c.term(spec.effect(c.section), spec, draws, frame) for c in EFFECTS if issubclass(c, FactorEffect))
+    return tuple(t for t in terms if t is not None)
+
+
+def offset_effect_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any) -> tuple[OffsetTerm, ...]:
+    """The offset effects in a calibration's predictions (:meth:`OffsetEffect.term`)."""
+    terms = (c.term(spec.effect(c.section), spec, draws, frame) for c in EFFECTS if issubclass(c, OffsetEffect))
     return tuple(t for t in terms if t is not None)
 
 
@@ -87,7 +105,7 @@ def offset_terms(
 ) -> tuple[DarkTerm, tuple[OffsetTerm, ...]]:
     """The terms a calibration adds to every reading, from the reported draws ``(chain, draw, ...)``: the
     dark level (``gains``: the gain of each fitted dark column) and the offset effects."""
-    return Dark.term(spec, draws, channels, gains), effect_terms(spec, draws, frame, "offset")
+    return Dark.term(spec, draws, channels, gains), offset_effect_terms(spec, draws, frame)
 
 
 def site_dims() -> Mapping[str, tuple[str, ...]]:

@@ -19,7 +19,7 @@ sphere's level errors (a ``"factor"``), the settings' effective factors (``"sett
 (``"noise"``) and the ADC's clipping (``"observation"``).  An :class:`Effect` is an optional term
 with a spec section of its own, in one of the two open places: a factor on the effective stimulus
 (``"factor"``) or a level added to every reading in DN (``"offset"``, present at zero exposure and
-zero light).  It is added to the model by one line in
+zero light), a :class:`FactorEffect` or an :class:`OffsetEffect`.  It is added to the model by one line in
 :data:`bayescal.model.components.EFFECTS`, and the spec, the data, the assembly, the reported
 quantities, predictions (:class:`~bayescal.posterior.calibration.Calibration`, through its
 :class:`FactorTerm` or :class:`OffsetTerm`) and the simulator all reach it through this protocol.
@@ -30,21 +30,34 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, Protocol
 
 import numpy as np
 
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["Component", "StimulusFactor", "Effect", "FactorTerm", "OffsetTerm", "Context"]
+    from bayescal.model.data import Layout, ModelData
+    from bayescal.model.setting import Setting
+    from bayescal.model.spec import ModelSpec
+
+__all__ = [
+    "Component",
+    "Context",
+    "Effect",
+    "FactorEffect",
+    "FactorTerm",
+    "OffsetEffect",
+    "OffsetTerm",
+    "StimulusFactor",
+]
 
 
 @dataclass(frozen=True)
 class Context:
     """What the conversion of scaled draws to physical units needs beside the draws."""
 
-    layout: Any  # bayescal.model.data.Layout
+    layout: Layout
     level_sigma: np.ndarray
     seed: int
 
@@ -79,19 +92,19 @@ class StimulusFactor(Component):
     """A multiplicative factor on the effective stimulus: the equation's ``S(x f_1 f_2 ...)``."""
 
     @abstractmethod
-    def sample(self, data) -> Any:
+    def sample(self, data: ModelData) -> Any:
         """The factor of every row (a JAX array, or 1.0 when the component adds nothing)."""
 
 
 class FactorTerm(Protocol):
     """An effect's posterior as predictions use it: its factor per draw at a camera setting."""
 
-    def factor(self, channel: str | None, setting: Any, n_draws: int) -> np.ndarray:
+    def factor(self, channel: str | None, setting: Setting, n_draws: int) -> np.ndarray:
         """Factor on the effective stimulus per draw at ``setting``, shape ``(n_draws,)``; ``channel``
         names the channel for effects that differ by channel (None: the camera's, or the first)."""
         ...
 
-    def flags(self, setting: Any) -> list[str]:
+    def flags(self, setting: Setting) -> list[str]:
         """Why a prediction at ``setting`` extrapolates this effect (empty: it does not)."""
         ...
 
@@ -99,35 +112,36 @@ class FactorTerm(Protocol):
 class OffsetTerm(Protocol):
     """An offset effect's posterior as predictions use it: the DN it adds per draw at a camera setting."""
 
-    def offset(self, channel: str | None, setting: Any, n_draws: int) -> np.ndarray:
+    def offset(self, channel: str | None, setting: Setting, n_draws: int) -> np.ndarray:
         """DN added to a reading per draw at ``setting``, shape ``(n_draws,)``."""
         ...
 
-    def flags(self, setting: Any) -> list[str]:
+    def flags(self, setting: Setting) -> list[str]:
         """Why a prediction at ``setting`` extrapolates this effect (empty: it does not)."""
         ...
 
 
-class Effect(StimulusFactor):
-    """An optional term with a spec section of its own (registered in ``EFFECTS``).
-
-    ``role = "factor"`` (default): ``sample`` returns each row's factor on the effective stimulus,
-    ``term`` a :class:`FactorTerm`, ``true_factor`` the simulator's factor.  ``role = "offset"``:
-    ``sample`` returns the DN each row's reading gains (the assembly scales it), ``term`` an
-    :class:`OffsetTerm`, ``true_offset`` the simulator's DN.
-    """
+class Effect(Component):
+    """An optional term with a spec section of its own (registered in ``EFFECTS``): a
+    :class:`FactorEffect` (a factor on the effective stimulus) or an :class:`OffsetEffect` (DN added to
+    every reading).  Code that treats the two apart asks which of the two classes an effect is."""
 
     #: the dataclass of its spec section (defaults must describe the effect switched off or automatic)
     spec_class: ClassVar[type]
     #: where it enters the measurement equation: "factor" (on the effective stimulus) or "offset" (DN added)
-    role: ClassVar[str] = "factor"
+    role: ClassVar[Literal["factor", "offset"]]
     #: keys of older specs that this section now holds: ``"section.key"`` -> its field here
     renamed: ClassVar[Mapping[str, str]] = {}
 
     @classmethod
     @abstractmethod
-    def build(cls, section: Any, spec: Any, frame: pd.DataFrame) -> Effect | None:
-        """The configured component for a table, or None when the model leaves it out."""
+    def build(cls, section: Any, spec: ModelSpec, frame: pd.DataFrame) -> Effect | None:
+        """The configured component for a table, or None when the model leaves it out (``section``: the
+        spec's section of this effect, an instance of :attr:`spec_class`)."""
+
+    @abstractmethod
+    def sample(self, data: ModelData) -> Any:
+        """Its value at every row (a JAX array): the factor, or the DN added."""
 
     def inputs(self, frame: pd.DataFrame) -> dict[str, np.ndarray]:
         """Per-row inputs the component reads from the table (into ``ModelData.extra``)."""
@@ -138,7 +152,7 @@ class Effect(StimulusFactor):
         return {}
 
     @classmethod
-    def candidates(cls, section: Any, spec: Any, frame: pd.DataFrame) -> dict[str, dict]:
+    def candidates(cls, section: Any, spec: ModelSpec, frame: pd.DataFrame) -> dict[str, dict]:
         """What the diagnosis (:func:`bayescal.fitting.diagnose.candidates`) may try when a model without
         this effect does not fit ``frame``: a name -> the spec change that adds it, for each form the table
         can measure (empty: none, or it is already in the model)."""
@@ -146,20 +160,53 @@ class Effect(StimulusFactor):
 
     @classmethod
     def term(
-        cls, section: Any, spec: Any, draws: Mapping[str, np.ndarray], frame: pd.DataFrame
+        cls, section: Any, spec: ModelSpec, draws: Mapping[str, np.ndarray], frame: pd.DataFrame
     ) -> FactorTerm | OffsetTerm | None:
         """The effect in a calibration's predictions, from its reported draws (None: not in them)."""
         return None
 
     @classmethod
-    def true_factor(cls, params: Mapping[str, Any], rows: pd.DataFrame, spec: Any) -> np.ndarray:
-        """The simulator's factor for every row of a simulated table (``params``: the design's
+    @abstractmethod
+    def truth(cls, params: Mapping[str, Any], rows: pd.DataFrame, spec: ModelSpec) -> np.ndarray:
+        """The simulator's value for every row of a simulated table (``params``: the design's
         ``[truth.effects.<section>]`` table; ``rows``: channel, exposure_s, gain, tdi_stages,
         temperature_c of every row)."""
-        return np.ones(len(rows))
+
+
+class FactorEffect(Effect, StimulusFactor):
+    """An effect that multiplies the effective stimulus: ``sample`` gives each row's factor, ``term`` a
+    :class:`FactorTerm`, ``truth`` the simulator's factor (1 where the design gives none)."""
+
+    role: ClassVar[Literal["factor", "offset"]] = "factor"
 
     @classmethod
-    def true_offset(cls, params: Mapping[str, Any], rows: pd.DataFrame, spec: Any) -> np.ndarray:
-        """An offset effect's DN for every row of a simulated table (``params`` and ``rows`` as in
-        :meth:`true_factor`)."""
+    def term(
+        cls, section: Any, spec: ModelSpec, draws: Mapping[str, np.ndarray], frame: pd.DataFrame
+    ) -> FactorTerm | None:
+        """The factor in a calibration's predictions (None: not in them)."""
+        return None
+
+    @classmethod
+    def truth(cls, params: Mapping[str, Any], rows: pd.DataFrame, spec: ModelSpec) -> np.ndarray:
+        """The simulator's factor (1: the effect is absent from the truth)."""
+        return np.ones(len(rows))
+
+
+class OffsetEffect(Effect):
+    """An effect that adds DN to every reading, dark or lit: ``sample`` gives each row's DN (the assembly
+    scales it), ``term`` an :class:`OffsetTerm`, ``truth`` the simulator's DN (0 where the design gives
+    none)."""
+
+    role: ClassVar[Literal["factor", "offset"]] = "offset"
+
+    @classmethod
+    def term(
+        cls, section: Any, spec: ModelSpec, draws: Mapping[str, np.ndarray], frame: pd.DataFrame
+    ) -> OffsetTerm | None:
+        """The offset in a calibration's predictions (None: not in them)."""
+        return None
+
+    @classmethod
+    def truth(cls, params: Mapping[str, Any], rows: pd.DataFrame, spec: ModelSpec) -> np.ndarray:
+        """The simulator's DN (0: the effect is absent from the truth)."""
         return np.zeros(len(rows))

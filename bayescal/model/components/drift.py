@@ -46,7 +46,7 @@ import numpy as np
 
 from bayescal.errors import SpecError, TableError
 from bayescal.io.checks import require_spread
-from bayescal.model.components.base import Effect
+from bayescal.model.components.base import Effect, FactorEffect, OffsetEffect
 
 __all__ = [
     "StimulusDrift",
@@ -244,7 +244,7 @@ class _Drift(Effect):
             return None  # a drift over the session is the bench's, not the camera's: no term in predictions
         built = cls.build(section, spec, frame)
         coef = np.asarray(draws[site], dtype=float)
-        return DriftTerm(coef.reshape(-1, coef.shape[-1]), built.tau_ref, built.low, built.high, cls.role)
+        return DriftTerm(coef.reshape(-1, coef.shape[-1]), built.tau_ref, built.low, built.high)
 
 
 @dataclass(frozen=True)
@@ -261,7 +261,7 @@ class StimulusDriftSpec(DriftSpec):
 
 
 @dataclass(frozen=True)
-class StimulusDrift(_Drift):
+class StimulusDrift(_Drift, FactorEffect):
     """``exp(h(tau))`` on the effective stimulus of every row, the same in every channel."""
 
     section = "stimulus_drift"
@@ -283,7 +283,7 @@ class StimulusDrift(_Drift):
         return jnp.exp(self.curve(data, jnp))
 
     @classmethod
-    def true_factor(cls, params, rows, spec) -> np.ndarray:
+    def truth(cls, params, rows, spec) -> np.ndarray:
         """``params``: ``relative`` (a list: the factor at the rows in their order, minus 1) — the simulator's
         drift is given per row, not as a basis."""
         return 1.0 + np.asarray(params.get("relative", np.zeros(len(rows))), dtype=float)
@@ -299,12 +299,11 @@ class OffsetDriftSpec(DriftSpec):
 
 
 @dataclass(frozen=True)
-class OffsetDrift(_Drift):
+class OffsetDrift(_Drift, OffsetEffect):
     """``d(tau)`` DN added to every reading, the same in every channel."""
 
     section = "offset_drift"
     spec_class = OffsetDriftSpec
-    role = "offset"
     sites = {"offset_drift_z": ("offset_drift_term",)}
     reported = {"offset_drift_coef": ("offset_drift_term",)}
     default_scale = 5.0
@@ -322,7 +321,7 @@ class OffsetDrift(_Drift):
         return self.curve(data, jnp)
 
     @classmethod
-    def true_offset(cls, params, rows, spec) -> np.ndarray:
+    def truth(cls, params, rows, spec) -> np.ndarray:
         """``params``: ``dn`` (a list: the DN added at the rows in their order)."""
         return np.asarray(params.get("dn", np.zeros(len(rows))), dtype=float)
 
@@ -336,7 +335,6 @@ class DriftTerm:
     tau_ref: float
     low: float
     high: float
-    role: str
 
     def _curve(self, setting) -> np.ndarray:
         temperature = setting.temperature_c

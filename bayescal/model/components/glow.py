@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bayescal.errors import SpecError
-from bayescal.model.components.base import Effect
+from bayescal.model.components.base import OffsetEffect
 from bayescal.model.components.channels import ChannelDraws, per_row
 
 __all__ = ["Glow", "GlowSpec", "GlowTerm"]
@@ -47,12 +47,11 @@ class GlowSpec:
 
 
 @dataclass(frozen=True)
-class Glow(Effect):
+class Glow(OffsetEffect):
     """``c_ch t^2 g / g_ref`` DN added to every reading of channel ``ch``."""
 
     section = "glow"
     spec_class = GlowSpec
-    role = "offset"
     renamed = {"dark.glow": "enabled"}
     sites = {"glow": ("channel",)}
     reported = {"dark_glow_dn_s2": ("channel",)}
@@ -103,7 +102,7 @@ class Glow(Effect):
         return GlowTerm.from_draws(draws["dark_glow_dn_s2"], frame, spec.reference.gain)
 
     @classmethod
-    def true_offset(cls, params, rows, spec) -> np.ndarray:
+    def truth(cls, params, rows, spec) -> np.ndarray:
         """``params``: ``dn_s2``, one value or a table channel -> value (DN/s^2 at the reference gain)."""
         if set(params) - {"dn_s2"}:
             raise SpecError(f"[truth.effects.glow] keys {sorted(set(params) - {'dn_s2'})}; expected ['dn_s2']")

@@ -28,7 +28,7 @@ import numpy as np
 from bayescal.errors import SpecError, TableError
 from bayescal.io.checks import require_spread
 from bayescal.io.limits import check_value
-from bayescal.model.components.base import Effect
+from bayescal.model.components.base import OffsetEffect
 from bayescal.model.components.temperature import COLUMN, ChannelCoefficients, true_coefficients
 
 __all__ = ["OffsetTemperature", "OffsetTemperatureSpec", "OffsetTemperatureTerm"]
@@ -57,12 +57,11 @@ class OffsetTemperatureSpec:
 
 
 @dataclass(frozen=True)
-class OffsetTemperature(Effect):
+class OffsetTemperature(OffsetEffect):
     """``o_ch (T - T_ref)`` DN added to every reading of channel ``ch``."""
 
     section = "offset_temperature"
     spec_class = OffsetTemperatureSpec
-    role = "offset"
     sites = {"offset_tc": ("channel",)}
     reported = {"offset_tc_dn_per_c": ("channel",)}
 
@@ -125,7 +124,7 @@ class OffsetTemperature(Effect):
         return OffsetTemperatureTerm.from_draws(draws["offset_tc_dn_per_c"], frame, section.reference_c)
 
     @classmethod
-    def true_offset(cls, params, rows, spec) -> np.ndarray:
+    def truth(cls, params, rows, spec) -> np.ndarray:
         """``params``: ``dn_per_c`` (one value, or a table channel -> value) and ``reference_c``
         (default 20); rows without a temperature are at the reference."""
         return cls.forward(*true_coefficients(params, rows, "offset_temperature", "dn_per_c"))

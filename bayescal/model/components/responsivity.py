@@ -27,7 +27,7 @@ import numpy as np
 from bayescal.errors import SpecError, TableError
 from bayescal.io.checks import require_spread
 from bayescal.io.limits import check_value
-from bayescal.model.components.base import Effect
+from bayescal.model.components.base import FactorEffect
 from bayescal.model.components.temperature import COLUMN, ChannelCoefficients, true_coefficients
 
 __all__ = ["ResponsivityTemperature", "ResponsivitySpec", "ResponsivityTerm"]
@@ -57,7 +57,7 @@ class ResponsivitySpec:
 
 
 @dataclass(frozen=True)
-class ResponsivityTemperature(Effect):
+class ResponsivityTemperature(FactorEffect):
     """``exp(c_ch (T - T_ref))`` on the effective stimulus of every illuminated row."""
 
     section = "responsivity"
@@ -116,7 +116,7 @@ class ResponsivityTemperature(Effect):
         return ResponsivityTerm.from_draws(draws["responsivity_tc"], frame, section.reference_c)
 
     @classmethod
-    def true_factor(cls, params, rows, spec) -> np.ndarray:
+    def truth(cls, params, rows, spec) -> np.ndarray:
         """``params``: ``coefficient_per_c`` (one value, or a table channel -> value) and
         ``reference_c`` (default 20); rows without a temperature are at the reference."""
         return cls.forward(*true_coefficients(params, rows, "responsivity", "coefficient_per_c"))

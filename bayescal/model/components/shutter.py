@@ -25,7 +25,7 @@ from typing import Literal
 import numpy as np
 
 from bayescal.errors import SpecError
-from bayescal.model.components.base import Effect
+from bayescal.model.components.base import FactorEffect
 
 __all__ = ["ShutterOffset", "ShutterSpec", "ShutterTerm"]
 
@@ -50,7 +50,7 @@ class ShutterSpec:
 
 
 @dataclass(frozen=True)
-class ShutterOffset(Effect):
+class ShutterOffset(FactorEffect):
     """``(1 + t0 / t) / (1 + t0 / t_ref)`` on the effective stimulus of every illuminated row."""
 
     section = "shutter"
@@ -99,7 +99,7 @@ class ShutterOffset(Effect):
         return ShutterTerm(np.asarray(draws["shutter_offset_s"], dtype=float).ravel(), float(spec.reference.exposure_s))
 
     @classmethod
-    def true_factor(cls, params, rows, spec) -> np.ndarray:
+    def truth(cls, params, rows, spec) -> np.ndarray:
         """``params``: ``offset_s`` (the true integration-time offset, seconds)."""
         if set(params) - {"offset_s"}:
             raise SpecError(f"[truth.effects.shutter] keys {sorted(params)}; expected ['offset_s']")
