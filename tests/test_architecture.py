@@ -129,3 +129,16 @@ def test_clear_caches_forgets_the_compiled_programs():
     program._CACHE[("a structure",)] = None  # noqa: SLF001 - the cache under test
     clear_caches()
     assert len(program._CACHE) == 0  # noqa: SLF001
+
+
+def test_the_fit_folder_names_its_files_alone():
+    """A fit folder's file names are written once (:mod:`bayescal.io.fit_folder`): no other module spells
+    them in code (docstrings may name them)."""
+    names = {"posterior.nc", "summary.json", "summary.csv", "lsq.csv"}
+    spelled = []
+    for path in PACKAGE.rglob("*.py"):
+        rel = path.relative_to(PACKAGE).as_posix()
+        if rel in ("io/fit_folder.py", "io/outputs.py", "fleet/store.py"):  # outputs: old folders; fleet: its own
+            continue
+        spelled += [f"{rel}: {s}" for s in _strings(ast.parse(path.read_text())) if s in names]
+    assert not spelled, spelled

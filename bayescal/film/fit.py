@@ -32,6 +32,7 @@ from bayescal.inference.diagnostics import Diagnostics
 from bayescal.inference.laplace import laplace
 from bayescal.inference.program import program_of
 from bayescal.io.files import write_json_atomic, write_netcdf
+from bayescal.io.fit_folder import POSTERIOR, SUMMARY, TABLE
 from bayescal.io.outputs import staged_directory
 
 __all__ = ["BandFit", "FilmFit", "fit_film", "fit_film_table", "REPORTED"]
@@ -167,9 +168,9 @@ class FilmFit:
         with staged_directory(out_dir, kind="fit") as stage:
             if measurements:
                 self.table.write_csv(stage("measurements.csv"))
-            write_netcdf(self.posterior, stage("posterior.nc"))
-            self.summary.to_csv(stage("summary.csv"), index_label="parameter", float_format="%.8g")
-            write_json_atomic(stage("summary.json"), self.to_dict())
+            write_netcdf(self.posterior, stage(POSTERIOR))
+            self.summary.to_csv(stage(TABLE), index_label="parameter", float_format="%.8g")
+            write_json_atomic(stage(SUMMARY), self.to_dict())
         return out_dir
 
 

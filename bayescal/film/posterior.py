@@ -16,6 +16,7 @@ import numpy as np
 
 from bayescal.errors import PosteriorError, TableError
 from bayescal.film.spec import FilmSpec
+from bayescal.io.fit_folder import POSTERIOR
 from bayescal.prediction.invert import Inversion
 
 __all__ = ["FilmCalibration", "UNIT"]
@@ -63,7 +64,7 @@ class FilmCalibration:
         if tree is None:
             import xarray as xr
 
-            tree = xr.open_datatree(path / "posterior.nc" if path.is_dir() else path)
+            tree = xr.open_datatree(path / POSTERIOR if path.is_dir() else path)
         if tree.attrs.get("kind") != "film" or "posterior" not in tree.children:
             raise PosteriorError(f"{path} was not written by a film fit (no kind = 'film' posterior)")
         post = tree["posterior"]

@@ -6,7 +6,6 @@ dispatches here on the fit's kind).
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -16,25 +15,28 @@ import pandas as pd
 from bayescal.errors import PosteriorError
 from bayescal.film.posterior import FilmCalibration
 from bayescal.io.files import write_json_atomic, write_text_atomic
+from bayescal.io.fit_folder import SUMMARY, FitFolder
 from bayescal.report.figures import colours, png_base64, subplots
 from bayescal.report.page import escape, image, page, table, verdict
 
 __all__ = ["write_film_report"]
 
 
-def write_film_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = None, seed: int = 0) -> Path:
-    """Write ``report.html`` and ``report.json`` for a film fit directory; returns the HTML path."""
-    fit_dir = Path(fit_dir)
-    out = Path(out) if out is not None else fit_dir / "report.html"
+def write_film_report(
+    fit_dir: str | os.PathLike | FitFolder, out: str | os.PathLike | None = None, seed: int = 0
+) -> Path:
+    """Write ``report.html`` and ``report.json`` for a film fit directory (or the
+    :class:`~bayescal.io.fit_folder.FitFolder` the report already holds); returns the HTML path."""
+    folder = fit_dir if isinstance(fit_dir, FitFolder) else FitFolder.at(fit_dir, "`bayescal report`", (SUMMARY,))
+    root = folder.root if folder.root is not None else folder.posterior_path.parent
+    out = Path(out) if out is not None else root / "report.html"
+    summary = folder.summary()
     try:
-        summary = json.loads((fit_dir / "summary.json").read_text())
         summary["diagnostics"]["verdict"], summary["parameters"]  # noqa: B018 - the keys the report reads
-    except (OSError, UnicodeError, ValueError, KeyError, TypeError) as exc:
-        raise PosteriorError(f"{fit_dir / 'summary.json'} is missing or not a film fit's summary ({exc})") from None
-    import xarray as xr
-
-    tree = xr.open_datatree(fit_dir / "posterior.nc")
-    cal = FilmCalibration.load(fit_dir, tree)
+    except (KeyError, TypeError) as exc:
+        raise PosteriorError(f"{folder.file(SUMMARY)} is not a film fit's summary ({exc})") from None
+    tree = folder.posterior()
+    cal = FilmCalibration.load(folder.posterior_path, tree)
     frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
     params = pd.DataFrame(summary["parameters"])
     examples = _examples(cal, frame, seed)

@@ -27,6 +27,7 @@ from bayescal.fitting.misfit import MisfitThresholds, misfit_checks
 from bayescal.inference import registry as backends
 from bayescal.inference.diagnostics import Diagnostics
 from bayescal.io.files import write_json_atomic, write_netcdf
+from bayescal.io.fit_folder import LSQ, POSTERIOR, SUMMARY, TABLE
 from bayescal.io.outputs import staged_directory
 from bayescal.io.table import MeasurementTable
 from bayescal.model.assemble import CalibrationModel
@@ -219,12 +220,12 @@ class Fit:
             if measurements:
                 self.model.table.write_csv(stage("measurements.csv"))
             if self.posterior is not None:
-                write_netcdf(self.posterior, stage("posterior.nc"))
-                self.summary.to_csv(stage("summary.csv"), index_label="parameter", float_format="%.8g")
+                write_netcdf(self.posterior, stage(POSTERIOR))
+                self.summary.to_csv(stage(TABLE), index_label="parameter", float_format="%.8g")
             else:
-                self.lsq.to_csv(stage("summary.csv"), index=False, float_format="%.8g")
-            self.lsq.to_csv(stage("lsq.csv"), index=False, float_format="%.8g")
-            write_json_atomic(stage("summary.json"), self.to_dict())
+                self.lsq.to_csv(stage(TABLE), index=False, float_format="%.8g")
+            self.lsq.to_csv(stage(LSQ), index=False, float_format="%.8g")
+            write_json_atomic(stage(SUMMARY), self.to_dict())
         return out_dir
 
 

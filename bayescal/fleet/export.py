@@ -19,6 +19,7 @@ import numpy as np
 from bayescal.errors import PosteriorError
 from bayescal.fleet.posterior import FleetFit
 from bayescal.fleet.store import safe_name
+from bayescal.io.fit_folder import POSTERIOR, SUMMARY
 from bayescal.model.physical import reported_from_pooled
 
 __all__ = ["fleet_calibration", "write_calibration"]
@@ -55,7 +56,7 @@ def write_calibration(
     check_output_dir(out_dir, "fit")
     source = template or camera or fleet.cameras[0]
     fleet.camera_index(source)
-    path = fleet_dir / "cameras" / safe_name(source) / "posterior.nc"
+    path = fleet_dir / "cameras" / safe_name(source) / POSTERIOR
     if not path.is_file():
         raise PosteriorError(f"{path} is missing; the fleet directory is incomplete (re-run `bayescal fleet`)")
     tree = xr.open_datatree(path)
@@ -87,9 +88,9 @@ def write_calibration(
     when = "its last campaign" if date is None else str(date)
     tree.attrs["fleet_source"] = f"{fleet_dir} camera={label} date={when} template={source} seed={seed}"
     with staged_directory(out_dir, kind="fit") as stage:
-        write_netcdf(tree, stage("posterior.nc"))
+        write_netcdf(tree, stage(POSTERIOR))
         write_json_atomic(
-            stage("summary.json"),
+            stage(SUMMARY),
             {
                 "status": "ok" if fleet.ok else "FAILED",
                 "backend": "fleet",

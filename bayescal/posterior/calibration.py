@@ -26,17 +26,18 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from bayescal.errors import PosteriorError, SpecError, TableError
+from bayescal.io.fit_folder import FitFolder
 from bayescal.model import kinds, observation
 from bayescal.model.components import (
     FactorTerm,
     Noise,
     OffsetTerm,
     Response,
+    Sphere,
     factor_terms,
     offset_terms,
 )
@@ -121,6 +122,10 @@ class Calibration:
     charge_nonlinearity: bool = False  # the nonlinearity is the charge's (before the gain), not the output's
     rolloff: np.ndarray | None = None  # (S, P) roll-off parameters in DN (model.components.rolloff); None: none
     rolloff_shape: str = "knee"  # the roll-off's shape (model.components.rolloff.SHAPES)
+    #: the spread of pixel responses up to which the fit bracketed a partly clipped mean (saturation.prnu_bound)
+    prnu_bound: float = 0.03
+    #: the sphere's fitted level errors, level name -> per-draw error ``(S,)``: what each measured level delivered
+    level_errors: dict[str, np.ndarray] = field(default_factory=dict, compare=False)
     #: inversion tables computed from these draws (:mod:`bayescal.prediction.tables`); a cache, not data
     tables: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -139,53 +144,39 @@ class Calibration:
             tuple(fit.model.layout.gain_values),
             table.frame,
             source=f"fit backend={fit.backend} seed={fit.seed}",
+            levels=_levels(post),
         )
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> Calibration:
-        """From a fit directory or its ``posterior.nc`` (spec and measurements are stored in it)."""
-        import xarray as xr
-
-        from bayescal.io.outputs import verify_output
-
-        path = Path(path)
-        if path.is_dir():
-            if not (path / "posterior.nc").exists() and (path / "summary.json").exists():
-                raise PosteriorError(
-                    f"no posterior at {path / 'posterior.nc'}: {path} holds a least-squares fit; "
-                    "predictions need a Bayesian backend (--backend nuts or laplace)"
-                )
-            verify_output(path, ("fit",), needs=("posterior.nc",), verb="a calibration's reader")
-            path = path / "posterior.nc"
-        elif path.is_file():  # a posterior.nc named directly: its folder, if any, is checked once here
-            verify_output(path, ("fit",), verb="a calibration's reader")
-        if not path.is_file():
-            raise PosteriorError(f"no posterior at {path}; run `bayescal fit ... --out DIR` first")
-        try:
-            dt = xr.open_datatree(path)
-        except Exception as exc:  # h5py/xarray raise many types for truncated or foreign files
-            raise PosteriorError(
-                f"{path} is not a readable posterior file ({type(exc).__name__}: {str(exc)[:200]}); "
-                "was it truncated? Re-run `bayescal fit`"
-            ) from None
+    def load(cls, path: str | os.PathLike | FitFolder) -> Calibration:
+        """From a fit directory or its ``posterior.nc`` (spec and measurements are stored in it), or a
+        :class:`~bayescal.io.fit_folder.FitFolder` a reader already holds (its posterior is opened once)."""
+        folder = path if isinstance(path, FitFolder) else FitFolder.at(path, "a calibration's reader")
+        dt = folder.posterior()
         attrs = dt.attrs
         if attrs.get("kind", kinds.CALIBRATION) != kinds.CALIBRATION:  # a posterior of another model kind
-            return kinds.get(str(attrs["kind"])).load_posterior(path, dt)
+            return kinds.get(str(attrs["kind"])).load_posterior(folder.posterior_path, dt)
         if "spec_toml" not in attrs or "posterior" not in dt.children or "measurements" not in dt.children:
-            raise PosteriorError(f"{path} was not written by `bayescal fit` (no spec, posterior or measurements)")
+            raise PosteriorError(
+                f"{folder.posterior_path} was not written by `bayescal fit` (no spec, posterior or measurements)"
+            )
         import tomllib
 
-        spec = ModelSpec.from_dict(tomllib.loads(attrs["spec_toml"]), source=str(path))
+        spec = ModelSpec.from_dict(tomllib.loads(attrs["spec_toml"]), source=str(folder.posterior_path))
         post = dt["posterior"]
         frame = dt["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
         frame = frame.rename(columns={spec.stimulus: "stimulus"})
         channels = tuple(str(c) for c in np.asarray(post["channel"]))
         gains = tuple(float(g) for g in np.asarray(post["gain_setting"])) if "gain_setting" in post.coords else ()
         draws = {str(k): np.asarray(post[str(k)]) for k in post.data_vars}
-        return cls._from_draws(spec, draws, channels, gains, frame, source=str(path))
+        return cls._from_draws(
+            spec, draws, channels, gains, frame, source=str(folder.posterior_path), levels=_levels(post)
+        )
 
     @classmethod
-    def _from_draws(cls, spec: ModelSpec, draws, channels, gains, frame, source: str) -> Calibration:
+    def _from_draws(
+        cls, spec: ModelSpec, draws, channels, gains, frame, source: str, levels: tuple[str, ...] = ()
+    ) -> Calibration:
         def flat(a):
             a = np.asarray(a, dtype=float)
             return a.reshape((-1,) + a.shape[2:])
@@ -218,6 +209,8 @@ class Calibration:
             charge_nonlinearity=spec.response.nonlinearity_domain == "charge",
             rolloff=Response.rolloff_params({k: flat(v) for k, v in draws.items() if k.startswith("rolloff_")}, spec),
             rolloff_shape=spec.response.rolloff_shape or "knee",
+            prnu_bound=spec.saturation.prnu_bound,
+            level_errors=_level_errors(draws, levels, flat),
         )
 
     @classmethod
@@ -446,6 +439,17 @@ class Calibration:
         :func:`bayescal.model.observation.expected`)."""
         return observation.expected(self.expected_dn(channel, stimulus, setting, relative, per_draw), self.full_scale)
 
+    def delivered(self, stimulus, levels) -> np.ndarray:
+        """What the measured rows delivered per draw, ``(S, n)``: each row's reading of the stimulus times
+        its sphere level's fitted error factor (:meth:`~bayescal.model.components.sphere.Sphere.factor`;
+        1 for a level the fit did not estimate, or a row without one)."""
+        stimulus = np.asarray(stimulus, dtype=float)[None, :] * np.ones((self.n_draws, 1))
+        for j, level in enumerate(levels):
+            error = self.level_errors.get(str(level))
+            if error is not None:
+                stimulus[:, j] = stimulus[:, j] * Sphere.factor(error)
+        return stimulus
+
     def flags(self, setting: Setting, stimulus=None) -> list[str]:
         """Why a prediction at ``setting`` (and ``stimulus``) is an extrapolation."""
         terms = self.factors + self.offset_terms()
@@ -513,3 +517,16 @@ def _photon_transfer(frame, spec, dark: DarkTerm) -> tuple[float, float]:
     design = np.column_stack([g_rel**2, g_rel * signal])[unsat]
     coef = lstsq(design, (f["dn_var"].to_numpy() - QUANTISATION_DN2)[unsat]).coef
     return float(np.sqrt(max(coef[0], 0.0))), float(max(coef[1], 0.0))
+
+
+def _levels(post) -> tuple[str, ...]:
+    """The sphere levels of a posterior's ``level`` coordinate (none without one)."""
+    return tuple(str(v) for v in np.asarray(post["level"])) if "level" in post.coords else ()
+
+
+def _level_errors(draws, levels: tuple[str, ...], flat) -> dict[str, np.ndarray]:
+    """Each fitted sphere level's error per draw, from the reported ``level_error`` ``(chain, draw, level)``."""
+    if "level_error" not in draws or not levels:
+        return {}
+    errors = flat(draws["level_error"])
+    return {name: errors[:, i] for i, name in enumerate(levels)}

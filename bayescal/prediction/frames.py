@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from bayescal.errors import SpecError, TableError
+from bayescal.io.fit_folder import POSTERIOR
 
 __all__ = ["FrameJob", "expand_frames", "frame_outputs", "invert_frames"]
 
@@ -82,7 +83,7 @@ def _calibration(posterior: str):
     from bayescal.prediction.tables import restore_tables
 
     path = Path(posterior)
-    key = (str(path.resolve()), (path / "posterior.nc" if path.is_dir() else path).stat().st_mtime_ns)
+    key = (str(path.resolve()), (path / POSTERIOR if path.is_dir() else path).stat().st_mtime_ns)
     cal = _CALIBRATIONS.get(key)
     if cal is None:
         cal = _CALIBRATIONS[key] = Calibration.load(posterior)

@@ -20,7 +20,6 @@ posterior draws.  Contents (issue 6):
 from __future__ import annotations
 
 import html
-import json
 import os
 from pathlib import Path
 
@@ -30,8 +29,9 @@ import pandas as pd
 from bayescal.errors import PosteriorError
 from bayescal.inference import registry as backends
 from bayescal.io.files import write_json_atomic, write_text_atomic
+from bayescal.io.fit_folder import POSTERIOR, SUMMARY, FitFolder
 from bayescal.model import kinds
-from bayescal.model.components import Saturation, Sphere
+from bayescal.model.components import Saturation
 from bayescal.model.setting import Setting
 from bayescal.posterior.calibration import Calibration
 from bayescal.prediction.invert import invert, radiance_draws
@@ -85,35 +85,23 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
 
     ``out`` defaults to ``FIT_DIR/report.html``; JSON and Markdown go beside it.
     """
-    from bayescal.io.outputs import verify_output
-
     fit_dir = Path(fit_dir)
     out = Path(out) if out is not None else fit_dir / "report.html"
-    info = verify_output(fit_dir, ("fit",), needs=("summary.json",), verb="`bayescal report`")
-    if info is not None and "posterior.nc" not in info.files:
-        if (fit_dir / "posterior.nc").exists():
-            verify_output(fit_dir, ("fit",), needs=("posterior.nc",), verb="`bayescal report`")  # says which run
-        raise PosteriorError(
-            f"{fit_dir} holds a least-squares fit (no posterior.nc); a report needs a Bayesian backend "
-            "(--backend nuts or laplace)"
-        )
+    folder = FitFolder.at(fit_dir, "`bayescal report`", needs=(SUMMARY, POSTERIOR))
     try:
-        summary = json.loads((fit_dir / "summary.json").read_text())
+        summary = folder.summary()
         kind = summary.get("model_kind", kinds.CALIBRATION)
         if kind != kinds.CALIBRATION:  # another model kind reports itself (bayescal.model.kinds)
-            return kinds.get(str(kind)).write_report(fit_dir, out, seed)
+            return kinds.get(str(kind)).write_report(folder, out, seed)
         for key in ("status", "backend", "seed", "model", "stimulus_unit", "lsq"):  # the keys the report reads
             summary[key]  # noqa: B018
         summary["diagnostics"]["verdict"]  # noqa: B018
-    except (OSError, UnicodeError, ValueError, KeyError, TypeError) as exc:
+    except (KeyError, TypeError, AttributeError) as exc:
         raise PosteriorError(
-            f"{fit_dir / 'summary.json'} is missing or not a bayescal summary ({type(exc).__name__}: {exc}); "
-            "re-run `bayescal fit`"
+            f"{folder.file(SUMMARY)} is not a bayescal summary ({type(exc).__name__}: {exc}); re-run `bayescal fit`"
         ) from None
-    cal = Calibration.load(fit_dir)
-    import xarray as xr
-
-    tree = xr.open_datatree(fit_dir / "posterior.nc")
+    cal = Calibration.load(folder)  # the posterior opened once: the figures below read the same tree
+    tree = folder.posterior()
     frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
     frame = frame.rename(columns={cal.stimulus: "stimulus"})
     lsq = pd.DataFrame(summary["lsq"])
@@ -123,7 +111,7 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
     examples = _examples(cal, seed)
     figures = {
         "response": _fig_response(cal, frame, lsq),
-        "residuals": _fig_residuals(cal, frame, tree),
+        "residuals": _fig_residuals(cal, frame),
         "misfit": _fig_misfit(summary["diagnostics"].get("misfit"), summary["diagnostics"].get("holdout")),
         "budget": _fig_budget(budget),
     } | _fig_chains(tree, summary["backend"])
@@ -278,23 +266,12 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
     return _png(fig)
 
 
-def _fig_residuals(cal: Calibration, frame: pd.DataFrame, tree) -> str:
+def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
     """Residuals in predictive sds (a band of +-2 is what the model allows), one colour per setting.
 
     Each row is predicted as the fit saw it: at its sphere level's reading times that level's fitted
     error (per draw), so the residuals are the ones the misfit checks judge."""
-    import tomllib
-
-    from bayescal.model.spec import ModelSpec
-
-    prnu_bound = ModelSpec.from_dict(tomllib.loads(tree.attrs["spec_toml"])).saturation.prnu_bound  # its default too
     hidden = 0
-    level_error, levels = None, {}
-    post = tree["posterior"]
-    if "level_error" in post:
-        err = np.asarray(post["level_error"])
-        level_error = err.reshape((-1,) + err.shape[2:])
-        levels = {str(v): i for i, v in enumerate(post["level"].values)}
     chans = list(cal.channels)
     fig, axes = subplots(1, len(chans), figsize=(4.6 * len(chans), 3.4), squeeze=False, sharey=True)
     rng = np.random.default_rng(1)
@@ -316,17 +293,13 @@ def _fig_residuals(cal: Calibration, frame: pd.DataFrame, tree) -> str:
             s = Setting(t, g, m)
             n_avg = (rows.get("n_frames", 1) * rows.get("n_pixels", 1)).to_numpy(dtype=float)
             stim = rows["stimulus"].to_numpy()
-            delivered = stim[None, :] * np.ones((cal.n_draws, 1))
-            if level_error is not None:
-                known = np.array([str(v) in levels for v in rows["level"]])
-                idx = np.array([levels.get(str(v), 0) for v in rows["level"]])
-                delivered = delivered * np.where(known, Sphere.factor(level_error[:, idx]), 1.0)
+            delivered = cal.delivered(stim, rows["level"] if "level" in rows else [""] * len(rows))
             pred = cal.sample_dn(ch, delivered, s, rng, n_avg=float(np.median(n_avg)), relative=True, per_draw=True)
             sd = np.std(pred, axis=0)
             resid = rows["dn_mean"].to_numpy() - np.median(pred, axis=0)
             z = np.divide(resid, sd, out=np.full_like(resid, np.nan), where=sd > 0)
             # a row every draw predicts at full scale has no spread to scale by: it is clipped, left out as such
-            near = _partly_clipped(cal, ch, delivered, s, prnu_bound, sd) | ~(sd > 0)
+            near = _partly_clipped(cal, ch, delivered, s, sd) | ~(sd > 0)
             hidden += int(near.sum())
             label = f"{t:g} s, gain {g:g}" + (f", TDI {m:g}" if m != 1 else "")
             ax.plot(stim[~near], z[~near], "o", ms=3.5, color=colours[k % len(colours)], label=label)
@@ -344,13 +317,12 @@ def _fig_residuals(cal: Calibration, frame: pd.DataFrame, tree) -> str:
     return _png(fig)
 
 
-def _partly_clipped(cal: Calibration, channel: str, stimulus, setting, prnu_bound: float, sd) -> np.ndarray:
-    """Rows whose pixels would partly clip: the clipping loss at a ``prnu_bound`` pixel spread exceeds half the
-    predictive sd (``stimulus`` per draw)."""
-    mean = np.median(cal.expected_dn(channel, stimulus, setting, relative=True, per_draw=True), axis=0)
-    signal = np.maximum(mean - np.median(cal.dark_dn(channel, setting)), 0.0)
-    pixel = cal.pixel_var(signal, setting)
-    loss = Saturation.loss(mean, pixel, prnu_bound, signal, cal.full_scale)
+def _partly_clipped(cal: Calibration, channel: str, stimulus, setting, sd) -> np.ndarray:
+    """Rows whose pixels would partly clip: the clipping loss at the fit's widest pixel spread
+    (``prnu_bound``) exceeds half the predictive sd (``stimulus`` per draw)."""
+    expected = cal.reading(channel, stimulus, setting, relative=True, per_draw=True)
+    mean, signal = np.median(expected.mean, axis=0), np.maximum(np.median(expected.signal, axis=0), 0.0)
+    loss = Saturation.loss(mean, cal.pixel_var(signal, setting), cal.prnu_bound, signal, cal.full_scale)
     return loss > 0.5 * sd
 
 
