@@ -23,6 +23,7 @@ from bayescal.model.components import (
     Effect,
     FactorEffect,
     Noise,
+    NoiseEffect,
     OffsetEffect,
     Response,
     Saturation,
@@ -84,6 +85,12 @@ class Parts:
             if isinstance(term, OffsetEffect):
                 yield term.sample(data) / self.dark.dn_scale
 
+    def sample_variances(self, data: ModelData, signal):
+        """Each noise effect's variance in the model's units, sampled in turn."""
+        for term in self.effects:
+            if isinstance(term, NoiseEffect):
+                yield term.variance(data, signal)
+
     @property
     def structure(self) -> Parts:
         """What the compiled program depends on: these parts with what the data carry left out
@@ -134,7 +141,9 @@ def numpyro_model(parts: Parts) -> Callable[[ModelData], None]:
 
         factors = (multiplier, *(f.sample(data) for f in parts.factors))
         expected = reading(data.u, factors, response, parts.sample_offsets(data))
-        observation.score(parts.noise, parts.saturation, data, expected)
+        observation.score(
+            parts.noise, parts.saturation, data, expected, tuple(parts.sample_variances(data, expected.signal))
+        )
 
     return model
 

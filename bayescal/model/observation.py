@@ -5,6 +5,7 @@ After :func:`bayescal.model.equation.reading` gives the expected reading ``mean 
 what the camera outputs is::
 
     var     = pixel variance / n_avg + excess^2 + (prnu S)^2        (Noise.reading_variance)
+              + the noise effects' variances                        (NoiseEffect)
     reading = ADC(mean + sqrt(var) z)                                (Saturation.adc)
 
 and, for a region mean near full scale whose pixels clip one by one (pixel values spread by their
@@ -57,6 +58,7 @@ def draw(
     prnu: float = 0.0,
     integer: bool = False,
     pixel_prnu: float | None = None,
+    extra: Any = 0.0,
 ) -> np.ndarray:
     """Readings drawn from the expected ones (numpy, broadcast shapes).
 
@@ -82,6 +84,8 @@ def draw(
         For a region mean: the PRNU fraction that spreads its pixels, which then clip one by one
         near full scale (the mean falls to ``E[min(Y, fs)]`` and only the unclipped share of the
         pixels carries noise).  None: the mean is clipped as a whole.
+    extra : float or array
+        Variance the noise effects add to the reading (DN^2).
     """
     signal = np.maximum(reading.signal, 0.0)
     mean = reading.mean
@@ -91,16 +95,18 @@ def draw(
         mean = Saturation.clipped_mean(mean, spread, full_scale)
         pixel_variance = pixel_variance * kept
         excess = excess * np.sqrt(kept)
-    var = Noise.reading_variance(pixel_variance, n_avg, excess, prnu, signal)
+    var = Noise.reading_variance(pixel_variance, n_avg, excess, prnu, signal) + extra
     return Saturation.adc(mean + np.sqrt(var) * normals, full_scale, integer=integer)
 
 
-def score(noise: Noise, saturation: Saturation, data: ModelData, reading: Reading) -> None:
+def score(noise: Noise, saturation: Saturation, data: ModelData, reading: Reading, extra: tuple[Any, ...] = ()) -> None:
     """The model's likelihood of the table's readings (numpyro site ``obs``): the noise of each row's mean
-    (sampling its excess scatter) and the clipping near full scale, given the expected ``reading`` in the
-    model's scaled units."""
+    (sampling its excess scatter, plus the noise effects' variances ``extra``) and the clipping near full
+    scale, given the expected ``reading`` in the model's scaled units."""
     import jax.numpy as jnp
 
     var_mean = noise.sample(data, reading.signal)
+    for variance in extra:
+        var_mean = var_mean + variance
     var_pix = noise.nominal_pixel_variance(data, reading.signal, jnp)
     saturation.observe(data, reading.mean, reading.signal, var_pix, var_mean)

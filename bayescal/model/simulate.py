@@ -25,7 +25,7 @@ from bayescal.errors import SpecError
 from bayescal.io.design import Design, Truth
 from bayescal.io.table import MeasurementTable
 from bayescal.model import observation
-from bayescal.model.components import Dark, Noise, OffsetEffect, Response, Sphere, effect
+from bayescal.model.components import Dark, FactorEffect, Noise, NoiseEffect, OffsetEffect, Response, Sphere, effect
 from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.data import effective_stimulus
 from bayescal.model.equation import reading
@@ -84,7 +84,7 @@ class Simulation:
             },
             index=range(stim.size),
         )
-        expected, var_t = _camera(self.truth, spec, rows, stim)
+        expected, var_t, extra = _camera(self.truth, spec, rows, stim)
         single = n_avg == 1
         normals = rng.standard_normal(stim.size)
         prnu = self.truth.prnu if single else 0.0
@@ -97,6 +97,7 @@ class Simulation:
             excess=self.truth.excess_dn,
             prnu=prnu,
             integer=single,
+            extra=extra,
         )
         return out.reshape(np.shape(stimulus))
 
@@ -133,7 +134,7 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
     nominal = np.where(lvl >= 0, np.asarray(design.levels)[np.maximum(lvl, 0)], 0.0)
     true_stim = nominal * scale * Sphere.factor(np.where(lvl >= 0, level_err[np.maximum(lvl, 0)], 0.0))
     t, g, m, temp = (rows[k].to_numpy() for k in ("exposure_s", "gain", "tdi_stages", "temperature_c"))
-    expected, var_t = _camera(truth, spec, rows, true_stim)
+    expected, var_t, extra = _camera(truth, spec, rows, true_stim)
     n_avg = design.n_frames * design.n_pixels
     single = n_avg == 1  # one pixel (the same one on every row: its PRNU is part of its response)
     normals = rng.standard_normal(len(rows))
@@ -146,6 +147,7 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
         excess=truth.excess_dn,
         integer=single,
         pixel_prnu=None if single else truth.prnu,  # a region mean: each pixel clips on its own
+        extra=extra,
     )
     dof = max(design.n_frames - 1, 1) * design.n_pixels
     dn_var = var_t * rng.chisquare(dof, len(rows)) / dof
@@ -170,7 +172,8 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
 
 
 def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndarray):
-    """The expected reading (DN and signal) and per-pixel temporal variance of the true camera at every row (its
+    """The expected reading (DN and signal), per-pixel temporal variance and the noise effects' variance
+    (DN^2) of the true camera at every row (its
     channel, exposure, gain, TDI stages and temperature; docs/architecture.md, section 2)."""
     ch = rows["channel"].to_numpy()
     t, g, m = (rows[k].to_numpy(dtype=float) for k in ("exposure_s", "gain", "tdi_stages"))
@@ -191,7 +194,18 @@ def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndar
     u = effective_stimulus(stimulus, t, g, m, spec)
     expected = reading(u, (factor,), lambda x: Response.forward(coef, x), (dark, added))
     var_t = Noise.pixel_variance(truth.read_noise_dn, truth.conversion_gain, g_rel, expected.signal)
-    return expected, var_t
+    return expected, var_t, _noise(truth, rows.assign(signal_dn=expected.signal), spec)
+
+
+def _noise(truth: Truth, rows: pd.DataFrame, spec: ModelSpec) -> np.ndarray:
+    """The variance (DN^2) the noise effects named in the truth add to every row (``rows`` with its true
+    signal, ``signal_dn``)."""
+    extra = np.zeros(len(rows))
+    for section, params in truth.effects.items():
+        cls = effect(section)
+        if issubclass(cls, NoiseEffect):
+            extra = extra + cls.truth(params, rows, spec)
+    return extra
 
 
 def _effects(truth: Truth, rows: pd.DataFrame, spec: ModelSpec) -> tuple[np.ndarray, np.ndarray]:
@@ -205,7 +219,7 @@ def _effects(truth: Truth, rows: pd.DataFrame, spec: ModelSpec) -> tuple[np.ndar
             raise SpecError(f"[truth.effects] names '{section}', which is not a registered effect") from None
         if issubclass(cls, OffsetEffect):
             added = added + cls.truth(params, rows, spec)
-        else:
+        elif issubclass(cls, FactorEffect):
             factor = factor * cls.truth(params, rows, spec)
     return factor, added
 

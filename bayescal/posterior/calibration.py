@@ -35,10 +35,12 @@ from bayescal.model import kinds, observation
 from bayescal.model.components import (
     FactorTerm,
     Noise,
+    NoiseTerm,
     OffsetTerm,
     Response,
     Sphere,
     factor_terms,
+    noise_terms,
     offset_terms,
 )
 from bayescal.model.components import rolloff as roll
@@ -122,6 +124,8 @@ class Calibration:
     charge_nonlinearity: bool = False  # the nonlinearity is the charge's (before the gain), not the output's
     rolloff: np.ndarray | None = None  # (S, P) roll-off parameters in DN (model.components.rolloff); None: none
     rolloff_shape: str = "knee"  # the roll-off's shape (model.components.rolloff.SHAPES)
+    #: the noise effects: variance each adds to a reading (:class:`~bayescal.model.components.base.NoiseTerm`)
+    noises: tuple[NoiseTerm, ...] = ()
     #: the spread of pixel responses up to which the fit bracketed a partly clipped mean (saturation.prnu_bound)
     prnu_bound: float = 0.03
     #: the sphere's fitted level errors, level name -> per-draw error ``(S,)``: what each measured level delivered
@@ -209,6 +213,7 @@ class Calibration:
             charge_nonlinearity=spec.response.nonlinearity_domain == "charge",
             rolloff=Response.rolloff_params({k: flat(v) for k, v in draws.items() if k.startswith("rolloff_")}, spec),
             rolloff_shape=spec.response.rolloff_shape or "knee",
+            noises=noise_terms(spec, draws, frame),
             prnu_bound=spec.saturation.prnu_bound,
             level_errors=_level_errors(draws, levels, flat),
         )
@@ -370,14 +375,25 @@ class Calibration:
         ``ndim`` dimensions with the draws first."""
         return self.excess_dn.reshape((-1,) + (1,) * (ndim - 1))
 
-    def noise_var(self, signal: np.ndarray, setting: Setting, n_avg: float = 1.0, prnu: float = 0.0) -> np.ndarray:
+    def extra_var(self, channel: str | None, setting: Setting, signal: np.ndarray) -> np.ndarray | float:
+        """Variance (DN^2) the noise effects add to a reading of ``signal`` (the draws first) at ``setting``."""
+        total: np.ndarray | float = 0.0
+        for term in self.noises:
+            total = total + term.variance(channel, setting, signal)
+        return total
+
+    def noise_var(
+        self, signal: np.ndarray, setting: Setting, n_avg: float = 1.0, prnu: float = 0.0, channel: str | None = None
+    ) -> np.ndarray:
         """Variance (DN^2) of one reading with ``n_avg`` pixels x frames averaged
-        (:class:`~bayescal.model.components.noise.Noise`).
+        (:class:`~bayescal.model.components.noise.Noise`), the noise effects' included (of ``channel``).
 
         ``signal`` has the draws on its first axis.
         """
         excess = self.excess(np.ndim(signal))
-        return Noise.reading_variance(self.pixel_var(signal, setting), n_avg, excess, prnu, np.maximum(signal, 0.0))
+        pixel = self.pixel_var(signal, setting)
+        var = Noise.reading_variance(pixel, n_avg, excess, prnu, np.maximum(signal, 0.0))
+        return var + self.extra_var(channel, setting, signal)
 
     def ratio(self, setting: Setting, channel: str | None = None) -> np.ndarray:
         """Stimulus -> effective stimulus per draw: the nominal ``t M g / (t_ref M_ref g_ref)`` times the
@@ -430,7 +446,10 @@ class Calibration:
         pixel = self.pixel_var(expected.signal, setting)
         normals = rng.standard_normal(expected.mean.shape)
         excess = self.excess(np.ndim(expected.signal))
-        return observation.draw(expected, pixel, normals, self.full_scale, n_avg=n_avg, excess=excess, prnu=prnu)
+        extra = self.extra_var(channel, setting, expected.signal)
+        return observation.draw(
+            expected, pixel, normals, self.full_scale, n_avg=n_avg, excess=excess, prnu=prnu, extra=extra
+        )
 
     def clipped_dn(
         self, channel: str, stimulus, setting: Setting, relative: bool = False, per_draw: bool = False

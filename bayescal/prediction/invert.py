@@ -147,7 +147,7 @@ def radiance_draws(
 
     def noise(signal: np.ndarray) -> np.ndarray:  # the reading's own noise (its variance per draw, at its signal)
         assert z is not None
-        return np.sqrt(cal.noise_var(signal.T, setting, n_avg, prnu).T) * z[None, :]
+        return np.sqrt(cal.noise_var(signal.T, setting, n_avg, prnu, channel).T) * z[None, :]
 
     dark = cal.dark_dn(channel, setting)[None, :]
     ratio = cal.ratio(setting, channel)[None, :]

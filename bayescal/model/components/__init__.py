@@ -21,6 +21,8 @@ from bayescal.model.components.base import (
     Effect,
     FactorEffect,
     FactorTerm,
+    NoiseEffect,
+    NoiseTerm,
     OffsetEffect,
     OffsetTerm,
     StimulusFactor,
@@ -42,6 +44,8 @@ __all__ = [
     "EFFECTS",
     "Component",
     "FactorEffect",
+    "NoiseEffect",
+    "NoiseTerm",
     "OffsetEffect",
     "Context",
     "Dark",
@@ -63,6 +67,7 @@ __all__ = [
     "effect",
     "factor_terms",
     "offset_effect_terms",
+    "noise_terms",
     "offset_terms",
     "reported_dims",
     "site_dims",
@@ -97,6 +102,12 @@ def factor_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any) -> tupl
 def offset_effect_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any) -> tuple[OffsetTerm, ...]:
     """The offset effects in a calibration's predictions (:meth:`OffsetEffect.term`)."""
     terms = (c.term(spec.effect(c.section), spec, draws, frame) for c in EFFECTS if issubclass(c, OffsetEffect))
+    return tuple(t for t in terms if t is not None)
+
+
+def noise_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any) -> tuple[NoiseTerm, ...]:
+    """The noise effects in a calibration's predictions (:meth:`NoiseEffect.term`)."""
+    terms = (c.term(spec.effect(c.section), spec, draws, frame) for c in EFFECTS if issubclass(c, NoiseEffect))
     return tuple(t for t in terms if t is not None)
 
 

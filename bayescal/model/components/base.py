@@ -47,6 +47,8 @@ __all__ = [
     "Effect",
     "FactorEffect",
     "FactorTerm",
+    "NoiseEffect",
+    "NoiseTerm",
     "OffsetEffect",
     "OffsetTerm",
     "StimulusFactor",
@@ -121,15 +123,30 @@ class OffsetTerm(Protocol):
         ...
 
 
+class NoiseTerm(Protocol):
+    """A noise effect's posterior as predictions use it: the variance it adds to a reading per draw."""
+
+    def variance(self, channel: str | None, setting: Setting, signal: np.ndarray) -> np.ndarray:
+        """Variance (DN^2) added to a reading of ``signal`` (DN, the draws on its first axis) at
+        ``setting``, broadcast against ``signal``."""
+        ...
+
+    def flags(self, setting: Setting) -> list[str]:
+        """Why a prediction at ``setting`` extrapolates this effect (empty: it does not)."""
+        ...
+
+
 class Effect(Component):
     """An optional term with a spec section of its own (registered in ``EFFECTS``): a
-    :class:`FactorEffect` (a factor on the effective stimulus) or an :class:`OffsetEffect` (DN added to
-    every reading).  Code that treats the two apart asks which of the two classes an effect is."""
+    :class:`FactorEffect` (a factor on the effective stimulus), an :class:`OffsetEffect` (DN added to
+    every reading) or a :class:`NoiseEffect` (variance added to every reading).  Code that treats them
+    apart asks which of the classes an effect is."""
 
     #: the dataclass of its spec section (defaults must describe the effect switched off or automatic)
     spec_class: ClassVar[type]
-    #: where it enters the measurement equation: "factor" (on the effective stimulus) or "offset" (DN added)
-    role: ClassVar[Literal["factor", "offset"]]
+    #: where it enters the measurement equation: "factor" (on the effective stimulus), "offset" (DN added)
+    #: or "noise" (variance added)
+    role: ClassVar[Literal["factor", "offset", "noise"]]
     #: keys of older specs that this section now holds: ``"section.key"`` -> its field here
     renamed: ClassVar[Mapping[str, str]] = {}
 
@@ -138,10 +155,6 @@ class Effect(Component):
     def build(cls, section: Any, spec: ModelSpec, frame: pd.DataFrame) -> Effect | None:
         """The configured component for a table, or None when the model leaves it out (``section``: the
         spec's section of this effect, an instance of :attr:`spec_class`)."""
-
-    @abstractmethod
-    def sample(self, data: ModelData) -> Any:
-        """Its value at every row (a JAX array): the factor, or the DN added."""
 
     def inputs(self, frame: pd.DataFrame) -> dict[str, np.ndarray]:
         """Per-row inputs the component reads from the table (into ``ModelData.extra``)."""
@@ -161,7 +174,7 @@ class Effect(Component):
     @classmethod
     def term(
         cls, section: Any, spec: ModelSpec, draws: Mapping[str, np.ndarray], frame: pd.DataFrame
-    ) -> FactorTerm | OffsetTerm | None:
+    ) -> FactorTerm | OffsetTerm | NoiseTerm | None:
         """The effect in a calibration's predictions, from its reported draws (None: not in them)."""
         return None
 
@@ -177,7 +190,7 @@ class FactorEffect(Effect, StimulusFactor):
     """An effect that multiplies the effective stimulus: ``sample`` gives each row's factor, ``term`` a
     :class:`FactorTerm`, ``truth`` the simulator's factor (1 where the design gives none)."""
 
-    role: ClassVar[Literal["factor", "offset"]] = "factor"
+    role: ClassVar[Literal["factor", "offset", "noise"]] = "factor"
 
     @classmethod
     def term(
@@ -197,7 +210,11 @@ class OffsetEffect(Effect):
     scales it), ``term`` an :class:`OffsetTerm`, ``truth`` the simulator's DN (0 where the design gives
     none)."""
 
-    role: ClassVar[Literal["factor", "offset"]] = "offset"
+    role: ClassVar[Literal["factor", "offset", "noise"]] = "offset"
+
+    @abstractmethod
+    def sample(self, data: ModelData) -> Any:
+        """The DN each row's reading gains (a JAX array, in DN: the assembly scales it)."""
 
     @classmethod
     def term(
@@ -209,4 +226,32 @@ class OffsetEffect(Effect):
     @classmethod
     def truth(cls, params: Mapping[str, Any], rows: pd.DataFrame, spec: ModelSpec) -> np.ndarray:
         """The simulator's DN (0: the effect is absent from the truth)."""
+        return np.zeros(len(rows))
+
+
+class NoiseEffect(Effect):
+    """An effect that adds variance to every reading, beside the read, shot and quantisation noise and the
+    excess scatter of :class:`~bayescal.model.components.noise.Noise`: ``variance`` gives each row's, in the
+    model's scaled units, at the row's signal; ``term`` a :class:`NoiseTerm`; ``truth`` the simulator's
+    variance in DN^2 (``rows`` then carries each row's true signal, ``signal_dn``; 0 where the design gives
+    none).  The observation (:mod:`bayescal.model.observation`) adds it to the reading's variance in the
+    model, the predictions and the simulator alike."""
+
+    role: ClassVar[Literal["factor", "offset", "noise"]] = "noise"
+
+    @abstractmethod
+    def variance(self, data: ModelData, signal: Any) -> Any:
+        """The variance each row's reading gains, in the model's scaled units (DN / full scale)^2, at the
+        rows' ``signal`` (same units), sampling the effect's sites."""
+
+    @classmethod
+    def term(
+        cls, section: Any, spec: ModelSpec, draws: Mapping[str, np.ndarray], frame: pd.DataFrame
+    ) -> NoiseTerm | None:
+        """The variance in a calibration's predictions (None: not in them)."""
+        return None
+
+    @classmethod
+    def truth(cls, params: Mapping[str, Any], rows: pd.DataFrame, spec: ModelSpec) -> np.ndarray:
+        """The simulator's variance (DN^2) at ``rows["signal_dn"]`` (0: the effect is absent)."""
         return np.zeros(len(rows))
