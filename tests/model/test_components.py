@@ -253,18 +253,18 @@ def test_the_monotone_rolloff_draws_other_shapes_and_is_undone():
 
 
 def test_every_component_fills_a_place_of_the_equation():
-    """The core components fill every place of the skeleton, one each; the effects take the two open ones."""
+    """The core components fill every place of the skeleton, one each; the effects take the three open ones."""
     from bayescal.model.components import CORE
     from bayescal.model.equation import ROLES
 
     assert sorted(c.role for c in CORE) == sorted(ROLES)
-    assert {e.role for e in EFFECTS} == {"factor", "offset"}
-    # an effect is a factor or an offset by its class, and its role says the same
-    from bayescal.model.components import FactorEffect, OffsetEffect
+    assert {e.role for e in EFFECTS} == {"factor", "offset", "noise"}
+    # an effect is a factor, an offset or a noise by its class, and its role says the same
+    from bayescal.model.components import FactorEffect, NoiseEffect, OffsetEffect
 
+    kinds = {"factor": FactorEffect, "offset": OffsetEffect, "noise": NoiseEffect}
     for e in EFFECTS:
-        assert issubclass(e, FactorEffect) != issubclass(e, OffsetEffect), e
-        assert e.role == ("factor" if issubclass(e, FactorEffect) else "offset"), e
+        assert [role for role, base in kinds.items() if issubclass(e, base)] == [e.role], e
 
 
 def test_the_turning_point_of_a_vanishing_curvature():

@@ -35,6 +35,7 @@ from bayescal.model.components.offset_temperature import OffsetTemperature
 from bayescal.model.components.response import Response, ResponseSpec
 from bayescal.model.components.responsivity import ResponsivityTemperature
 from bayescal.model.components.saturation import Saturation, SaturationSpec
+from bayescal.model.components.scatter import RelativeScatter
 from bayescal.model.components.settings import SettingFactors, SettingsSpec
 from bayescal.model.components.shutter import ShutterOffset
 from bayescal.model.components.sphere import Sphere, SphereSpec
@@ -84,6 +85,7 @@ EFFECTS: tuple[type[Effect], ...] = (
     Glow,
     StimulusDrift,
     OffsetDrift,
+    RelativeScatter,
 )
 
 
