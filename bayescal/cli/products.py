@@ -38,7 +38,9 @@ def cmd_predict(args) -> int:
         f"Posterior predictive DN at exposure {setting.exposure_s:g} s, gain {setting.gain:g}, "
         f"TDI {setting.tdi_stages:g} ({cal.stimulus} in {cal.unit}; 95 % intervals):"
     )
-    print(table.drop(columns=["exposure_s", "gain", "tdi_stages", "why"]).to_string(index=False, float_format="%.4g"))
+    shown = table.drop(columns=["exposure_s", "gain", "tdi_stages", "why"])
+    # the requested stimulus as asked (15.9973, not 16); the predictions to four digits
+    print(shown.to_string(index=False, float_format="%.4g", formatters={"stimulus": "{:.10g}".format}))
     for why in sorted(set(table.loc[table.extrapolated, "why"])):
         print(f"EXTRAPOLATION: {why}", file=sys.stderr)
     if args.out:

@@ -16,6 +16,7 @@ def quadratic(seed000):
     return spec, bc.simulate(spec, design, seed=51)
 
 
+@pytest.mark.slow  # two NUTS fits; LOO between domains runs by default in test_nonlinearity_domain
 def test_loo_prefers_the_true_quadratic(quadratic):
     spec, sim = quadratic
     with warnings.catch_warnings():

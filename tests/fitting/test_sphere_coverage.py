@@ -2,6 +2,7 @@
 the nominal rate over 30 datasets; without it they under-cover (Laplace backend)."""
 
 import numpy as np
+import pytest
 
 import bayescal as bc
 
@@ -30,6 +31,7 @@ def _flat(draws):
     return draws.reshape((-1,) + draws.shape[2:])
 
 
+@pytest.mark.slow  # a coverage rate over many fits; the sphere component is in every default-run fit
 def test_sphere_component_restores_coverage(seed000):
     spec, design = seed000
     assert spec.sphere.common_rel == 0.03

@@ -152,6 +152,7 @@ def test_flat_prior_nuts_nonlinear(name):
     assert np.all(np.abs(post.mean - cert) < 0.15 * sd)
 
 
+@pytest.mark.slow  # the hardest NIST problem by NUTS; the other flat-prior NUTS problems run by default
 def test_flat_prior_nuts_hard_nonlinear():
     """Where the linearisation is not the posterior, NUTS says so instead of returning the certified sds.
 

@@ -9,12 +9,14 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 import bayescal as bc
 from bayescal.validation.wild import simulate_wild
 from tests.conftest import quiet_fit
 
 
+@pytest.mark.slow  # a diagnosis on a full table; test_components checks the monotone shape by default
 def test_an_exponential_saturation_is_drawn_by_the_monotone_shape():
     frame, session = simulate_wild(1)
     assert session.label() == "rolloff: exponential"

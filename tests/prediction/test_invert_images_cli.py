@@ -92,8 +92,10 @@ def test_bayer_mosaic_inversion_recovers_flat_field(calibrated, tmp_path):
 def test_predict_and_plan_cli(calibrated, tmp_path, capsys):
     _, _, cal, fitdir = calibrated
     out = tmp_path / "pred.csv"
-    assert main(["predict", str(fitdir), "--exposure-s", "0.02", "--radiance", "10", "--out", str(out)]) == 0
-    err = capsys.readouterr().err
+    assert main(["predict", str(fitdir), "--exposure-s", "0.02", "--radiance", "10,15.9973", "--out", str(out)]) == 0
+    printed = capsys.readouterr()
+    err = printed.err
+    assert "15.9973" in printed.out  # the radiance asked for, not rounded to 16
     assert "EXTRAPOLATION" in err and "exposure 0.02 s outside the" in err and "measured with light" in err
     import pandas as pd
 

@@ -108,6 +108,7 @@ def laplace_sbc():
     return run_sbc(model, SBC_LAPLACE_N, "laplace", seed=21, bins=10)
 
 
+@pytest.mark.slow  # an SBC run; test_sbc_cli runs a small one by default
 def test_sbc_laplace_seed000(laplace_sbc):
     res = laplace_sbc
     summ = res.summary()
@@ -130,6 +131,7 @@ def test_sbc_nuts_seed002():
     assert abs(float(res.covered.to_numpy().mean()) - 0.95) < 3 * np.sqrt(0.0475 / 25)
 
 
+@pytest.mark.slow  # shares the SBC run above
 def test_sbc_detects_a_wrong_posterior(laplace_sbc):
     """Negative control: posteriors shrunk to half their width around their means give
     U-shaped ranks and low coverage, which the statistics flag."""
