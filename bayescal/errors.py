@@ -14,6 +14,8 @@ __all__ = [
     "PosteriorError",
     "FitFailedError",
     "FitFailedWarning",
+    "MissingExtraError",
+    "optional",
 ]
 
 
@@ -61,5 +63,33 @@ class FitFailedError(BayescalError, RuntimeError):
     """Raised when a fit's diagnostics fail and the caller asked for strictness."""
 
 
+class MissingExtraError(BayescalError, ImportError):
+    """A feature needs an optional package that is not installed (the message names the extra to install)."""
+
+
 class FitFailedWarning(UserWarning):
     """Warned when a fit's diagnostics fail (divergences, R-hat, ESS)."""
+
+
+#: the optional packages and the extra of ``pyproject.toml`` that installs each
+EXTRAS = {
+    "emcee": "emcee",
+    "blackjax": "blackjax",
+    "dask": "maps",
+    "zarr": "maps",
+    "distributed": "cluster",
+    "astropy": "fits",
+}
+
+
+def optional(module: str, needed_for: str):
+    """Import the optional package ``module`` (a dotted name within it is fine), or raise
+    :class:`MissingExtraError` saying what needs it and which extra installs it."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        extra = EXTRAS.get(module.split(".")[0])
+        hint = f"pip install 'bayescal[{extra}]'" if extra else f"pip install {module.split('.')[0]}"
+        raise MissingExtraError(f"{needed_for} needs the optional package '{module.split('.')[0]}': {hint}") from None

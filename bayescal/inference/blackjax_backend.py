@@ -19,6 +19,7 @@ from functools import lru_cache
 import numpy as np
 
 from bayescal._config import computes
+from bayescal.errors import optional
 from bayescal.inference.chains import map_chains, progress_channel, report
 from bayescal.inference.diagnostics import Diagnostics, mcmc_diagnostics
 from bayescal.inference.laplace import LaplaceResult, covariance_factor
@@ -36,7 +37,7 @@ _EVERY = 50
 def _compiled(program: Program, settings: tuple):
     """``run(run_number, index, key, w0, data, center, chol)``: one chain's warmup and draws, compiled once
     (progress is reported every 50 draws to the run's channel, the warmup as one step)."""
-    import blackjax
+    blackjax = optional("blackjax", "the blackjax backend")
     import jax
     import jax.numpy as jnp
 

@@ -14,12 +14,12 @@ from __future__ import annotations
 from functools import lru_cache
 from typing import NamedTuple
 
-import emcee
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from bayescal._config import computes
+from bayescal.errors import optional
 from bayescal.inference.program import Program, ProgramData
 from bayescal.model.spec import InferenceSpec
 
@@ -63,6 +63,7 @@ def run_emcee(
     progress : callable, optional
         ``progress(steps_done)``, called every 50 steps (burn-in included).
     """
+    emcee = optional("emcee", "the emcee backend")
     dim = mode.size
     walkers = settings.emcee_walkers or max(4 * dim, 32)
     walkers += walkers % 2

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from bayescal.errors import SpecError
+from bayescal.errors import SpecError, optional
 
 __all__ = ["scheduler_address", "connect"]
 
@@ -41,7 +41,7 @@ def scheduler_address(text: str, what: str = "--scheduler") -> str:
 def connect(address: str) -> Iterator[Any]:
     """A ``distributed.Client`` on the scheduler at ``address``, closed afterwards; a scheduler that cannot
     be reached raises :class:`~bayescal.errors.SpecError` naming the address."""
-    from distributed import Client
+    Client = optional("distributed", "a dask scheduler (--scheduler)").Client
 
     address = scheduler_address(address)
     try:

@@ -25,6 +25,7 @@ import os
 
 import numpy as np
 
+from bayescal.errors import optional
 from bayescal.maps.kernel import block_maps
 from bayescal.maps.metadata import provenance, variable_attrs
 from bayescal.maps.model import SensorModel, fit_map_model
@@ -81,7 +82,7 @@ def build_maps(
 
 def lazy_maps(manifest: Manifest, model: SensorModel, calibration: str | None):
     """The maps as an xarray Dataset of dask arrays: one task per row block."""
-    import dask.array as da
+    da = optional("dask.array", "per-pixel maps")
     import xarray as xr
 
     rows = next(iter(model.models.values())).info["rows_per_chunk"]

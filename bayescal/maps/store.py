@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from bayescal._config import numerics
-from bayescal.errors import TableError
+from bayescal.errors import TableError, optional
 from bayescal.io.files import write_netcdf
 from bayescal.io.outputs import staged_directory
 from bayescal.maps.build import lazy_maps
@@ -41,6 +41,8 @@ def write_maps(ds, out: str | os.PathLike, *, netcdf: bool = False, progress=Non
     progress : callable, optional
         ``progress(done, total)`` after each row block (local scheduler).
     """
+    for package in ("dask", "zarr"):
+        optional(package, "per-pixel maps")
     import dask
     import dask.array as da
     from dask.callbacks import Callback
@@ -131,6 +133,8 @@ def make_maps(
     as for :func:`write_maps`; ``stage(message)`` reports the
     population before the maps are written.  Returns the lazy-opened maps.
     """
+    for package in ("dask", "zarr"):
+        optional(package, "per-pixel maps")
     import dask
     import dask.array as da
     from dask.callbacks import Callback

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayescal.errors import SpecError, TableError
+from bayescal.errors import SpecError, TableError, optional
 from bayescal.io.fit_folder import POSTERIOR
 
 __all__ = ["FrameJob", "expand_frames", "frame_outputs", "invert_frames"]
@@ -188,7 +188,7 @@ def _channel_names(job: FrameJob) -> list[str]:
 
 
 def _on_cluster(jobs: Sequence[FrameJob], scheduler: str, tick: Callable[[int], None] | None) -> list[dict]:
-    from distributed import as_completed
+    as_completed = optional("distributed", "a survey on a dask scheduler (--scheduler)").as_completed
 
     from bayescal.io.cluster import connect
 
