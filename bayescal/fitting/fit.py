@@ -45,10 +45,15 @@ def fit(
     strict: bool = False,
     stage=None,
 ) -> Fit:
-    """Fit ``spec`` to ``table``.
+    """Fit ``spec`` to ``table``: the posterior of every calibration quantity, judged by its diagnostics,
+    beside the least-squares baseline.
 
     Parameters
     ----------
+    table : MeasurementTable
+        The measurements (:func:`~bayescal.load_table`; a film's table for a film spec).
+    spec : ModelSpec
+        The model (:func:`~bayescal.load_spec`): the sensor's facts and the components to assemble.
     backend : {"nuts", "laplace", "emcee", "blackjax", "lsq"}
         Inference method (docs/architecture.md, section 4).
     seed : int
@@ -60,6 +65,21 @@ def fit(
         Raise :class:`~bayescal.errors.FitFailedError` instead of warning when diagnostics fail.
     stage : callable, optional
         ``stage(message)`` is called as each stage starts (model, mode, sampling, checks).
+
+    Returns
+    -------
+    Fit
+        The draws, the summaries (``summary``, ``comparison``), the diagnostics and the baseline;
+        ``save(dir)`` writes them, :meth:`~bayescal.Calibration.from_fit` turns them into predictions.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> spec = bc.load_spec("seed000")
+    >>> table = bc.simulate(spec, bc.load_design("seed000"), seed=1).table
+    >>> result = bc.fit(table, spec, "laplace", seed=1)  # doctest: +SKIP
+    >>> result.ok  # doctest: +SKIP
+    True
     """
     if kinds.kind_of(spec) != kinds.CALIBRATION:  # another model kind fits itself (bayescal.model.kinds)
         return kinds.get(kinds.kind_of(spec)).fit(
