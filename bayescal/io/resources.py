@@ -37,12 +37,18 @@ class Example:
     """One shipped file: its name (the file's stem), what it is, what its first comment line says."""
 
     name: str
-    kind: str  # "spec", "design", "fleet design" or "data"
+    kind: str  # "spec", "design", "fleet design", "data" or "image"
     path: Path
     about: str
 
 
+#: the shipped raw frames' formats
+IMAGES = (".tif", ".fits")
+
+
 def _kind(path: Path) -> str:
+    if path.suffix in IMAGES:
+        return "image"
     if path.suffix != ".toml":
         return "data"
     if path.stem.endswith("_design"):
@@ -51,6 +57,9 @@ def _kind(path: Path) -> str:
 
 
 def _about(path: Path) -> str:
+    if path.suffix in IMAGES:
+        form = "FITS" if path.suffix == ".fits" else "TIFF"
+        return f"a raw RGGB frame of the seed 000 camera at 1/250 s, gain 1 ({form}; models/make_frames.py)"
     if path.suffix != ".toml":
         return "example measurements"
     for line in path.read_text(encoding="utf-8").splitlines():
@@ -63,7 +72,8 @@ def _about(path: Path) -> str:
 def examples() -> tuple[Example, ...]:
     """Every shipped spec, design and data file, by name (read once per process)."""
     files = sorted(models_dir().iterdir())
-    return tuple(Example(p.stem, _kind(p), p, _about(p)) for p in files if p.suffix in (".toml", ".csv"))
+    shipped = (".toml", ".csv", *IMAGES)
+    return tuple(Example(p.stem, _kind(p), p, _about(p)) for p in files if p.suffix in shipped)
 
 
 def example_path(name: str | os.PathLike, kind: str) -> Path:
