@@ -201,6 +201,7 @@ def cmd_report(args) -> int:
     from bayescal.cli.progress import stage_reporter
 
     stage_reporter()("drawing the report's figures and tables")
-    path = write_report(fit_dir, args.out, seed=args.seed)
-    print(f"wrote {path} (+ {path.with_suffix('.json').name}, {path.with_suffix('.md').name})")
+    path = write_report(fit_dir, args.out, seed=args.seed, figures=args.figures)
+    extra = ", the figures as PNGs" if args.figures else ""
+    print(f"wrote {path} (+ {path.with_suffix('.json').name}, {path.with_suffix('.md').name}{extra})")
     return 0

@@ -178,6 +178,11 @@ def _report(sub) -> None:
         paths=lambda v: [v, str(Path(v).with_suffix(".json")), str(Path(v).with_suffix(".md"))],
     )
     rp.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
+    rp.add_argument(
+        "--figures",
+        action="store_true",
+        help="also write each figure as a PNG beside the HTML (report-response.png, report-residuals.png, ...)",
+    )
     rp.set_defaults(func=cmd_report)
 
 

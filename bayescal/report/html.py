@@ -19,6 +19,7 @@ posterior draws.  Contents (issue 6):
 
 from __future__ import annotations
 
+import base64
 import html
 import os
 from pathlib import Path
@@ -28,7 +29,7 @@ import pandas as pd
 
 from bayescal.errors import PosteriorError
 from bayescal.inference import registry as backends
-from bayescal.io.files import write_json_atomic, write_text_atomic
+from bayescal.io.files import atomic_path, write_json_atomic, write_text_atomic
 from bayescal.io.fit_folder import POSTERIOR, SUMMARY, FitFolder
 from bayescal.model import kinds
 from bayescal.model.components import Saturation
@@ -80,10 +81,24 @@ def uncertainty_budget(cal: Calibration, fractions=BUDGET_FRACTIONS, seed: int =
     return pd.DataFrame(rows)
 
 
-def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = None, seed: int = 0) -> Path:
+#: the report's figures, by name: with ``figures=True`` each is also written as ``<report>-<name>.png``
+FIGURES = ("response", "residuals", "misfit", "budget", "trace", "rank")
+
+
+def figure_paths(out: str | os.PathLike) -> list[Path]:
+    """Where :func:`write_report` with ``figures=True`` writes each figure, beside the HTML ``out``."""
+    out = Path(out)
+    return [out.with_name(f"{out.stem}-{name}.png") for name in FIGURES]
+
+
+def write_report(
+    fit_dir: str | os.PathLike, out: str | os.PathLike | None = None, seed: int = 0, figures: bool = False
+) -> Path:
     """Write ``report.html`` (self-contained), ``report.json`` and ``report.md``; returns the HTML path.
 
-    ``out`` defaults to ``FIT_DIR/report.html``; JSON and Markdown go beside it.
+    ``out`` defaults to ``FIT_DIR/report.html``; JSON and Markdown go beside it, and with ``figures``
+    each figure as a PNG (:func:`figure_paths`: ``report-response.png``, ...; the chains' trace and rank
+    plots only for a backend with chains), for a lab's own documents.
     """
     fit_dir = Path(fit_dir)
     out = Path(out) if out is not None else fit_dir / "report.html"
@@ -100,6 +115,10 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
         raise PosteriorError(
             f"{folder.file(SUMMARY)} is not a bayescal summary ({type(exc).__name__}: {exc}); re-run `bayescal fit`"
         ) from None
+    if figures:  # before any drawing: a file of the user's is never replaced
+        from bayescal.io.ledger import check_output_file
+
+        check_output_file(*figure_paths(out))
     cal = Calibration.load(folder)  # the posterior opened once: the figures below read the same tree
     tree = folder.posterior()
     frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
@@ -109,7 +128,7 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
     lsq_ref = _lsq_at_reference(lsq, cal, summary)
     budget = uncertainty_budget(cal, seed=seed)
     examples = _examples(cal, seed)
-    figures = {
+    drawn = {
         "response": _fig_response(cal, frame, lsq),
         "residuals": _fig_residuals(cal, frame),
         "misfit": _fig_misfit(summary["diagnostics"].get("misfit"), summary["diagnostics"].get("holdout")),
@@ -131,7 +150,12 @@ def write_report(fit_dir: str | os.PathLike, out: str | os.PathLike | None = Non
     }
     write_json_atomic(out.with_suffix(".json"), data)
     write_text_atomic(out.with_suffix(".md"), _markdown(data, coef, lsq_ref, budget, examples))
-    write_text_atomic(out, _html(data, coef, lsq_ref, budget, examples, figures))
+    write_text_atomic(out, _html(data, coef, lsq_ref, budget, examples, drawn))
+    if figures:
+        for name, path in zip(FIGURES, figure_paths(out), strict=True):
+            if name in drawn:
+                with atomic_path(path) as tmp:
+                    tmp.write_bytes(base64.b64decode(drawn[name]))
     return out
 
 

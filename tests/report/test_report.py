@@ -128,3 +128,26 @@ def test_import_changes_no_global_state():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     before, after = json.loads(out.stdout.strip().splitlines()[-1])
     assert before == after and before[0] is False, (before, after)
+
+
+def test_the_figures_are_written_as_pngs_beside_the_report(report_dir, tmp_path):
+    """``--figures``: each figure the page embeds is also a PNG file (a Laplace fit has no chains, so no
+    trace or rank plot), the same image as the page's; a PNG of the user's named like one is refused
+    before any drawing."""
+    import base64
+
+    from bayescal.report.html import figure_paths
+
+    out = tmp_path / "cal.html"
+    assert main(["report", str(report_dir), "--out", str(out), "--figures"]) == 0
+    written = sorted(p.name for p in tmp_path.glob("cal-*.png"))
+    assert written == ["cal-budget.png", "cal-misfit.png", "cal-residuals.png", "cal-response.png"]
+    page = out.read_text()
+    for path in figure_paths(out)[:4]:
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert base64.b64encode(path.read_bytes()).decode() in page  # the page's own image
+    mine = tmp_path / "other"
+    mine.mkdir()
+    (mine / "r-response.png").write_bytes(b"a figure of my own")
+    assert main(["report", str(report_dir), "--out", str(mine / "r.html"), "--figures"]) == 2
+    assert (mine / "r-response.png").read_bytes() == b"a figure of my own" and not (mine / "r.html").exists()
