@@ -49,7 +49,7 @@ def main() -> None:
         _run("simulate", "--design", "seed000", "--out", "data.csv", "--seed", "1", cwd=cwd)
         _run("fit", "data.csv", "--model", "seed000", "--backend", "laplace", "--out", "fit", "--quiet", cwd=cwd)
         _run("report", "fit", "--figures", cwd=cwd)
-        for name in ("response", "residuals", "misfit"):
+        for name in ("coefficients", "response", "residuals", "misfit"):
             shutil.copyfile(cwd / "fit" / f"report-{name}.png", HERE / f"report-{name}.png")
         _run("examples", "--copy", "seed000_frame", cwd=cwd)
         _run("invert", "fit", "seed000_frame.tif", "--cfa", "RGGB", "--exposure-s", "0.004", "--out", "radiance", cwd=cwd)

@@ -82,7 +82,7 @@ def uncertainty_budget(cal: Calibration, fractions=BUDGET_FRACTIONS, seed: int =
 
 
 #: the report's figures, by name: with ``figures=True`` each is also written as ``<report>-<name>.png``
-FIGURES = ("response", "residuals", "misfit", "budget", "trace", "rank")
+FIGURES = ("coefficients", "response", "residuals", "misfit", "budget", "trace", "rank")
 
 
 def figure_paths(out: str | os.PathLike) -> list[Path]:
@@ -129,6 +129,7 @@ def write_report(
     budget = uncertainty_budget(cal, seed=seed)
     examples = _examples(cal, seed)
     drawn = {
+        "coefficients": _fig_coefficients(coef),
         "response": _fig_response(cal, frame, lsq),
         "residuals": _fig_residuals(cal, frame),
         "misfit": _fig_misfit(summary["diagnostics"].get("misfit"), summary["diagnostics"].get("holdout")),
@@ -350,6 +351,42 @@ def _partly_clipped(cal: Calibration, channel: str, stimulus, setting, sd) -> np
     return loss > 0.5 * sd
 
 
+def _fig_coefficients(coef: pd.DataFrame) -> str:
+    """Each coefficient at the reference setting, a panel per channel (row) and coefficient (column), each on
+    its own scale: the posterior's 95 % interval against the sphere's scale (comparable with least squares)
+    and with that scale's doubt included, beside the least-squares estimate and its 95 % confidence
+    interval."""
+    names = list(dict.fromkeys(coef["coefficient"]))
+    channels = list(dict.fromkeys(coef["channel"]))
+    fig, axes = subplots(
+        len(channels), len(names), figsize=(3.2 * len(names), 1.05 * len(channels) + 1.0), squeeze=False
+    )
+    marks = (
+        ("rel_mean", "rel_q2.5", "rel_q97.5", "C0", "Bayes, against the sphere's scale"),
+        ("mean", "q2.5", "q97.5", "C2", "Bayes, absolute (the sphere scale's doubt in)"),
+        ("lsq", "lsq_lo", "lsq_hi", "k", "least squares"),
+    )
+    for row, channel in zip(axes, channels, strict=True):
+        for ax, name in zip(row, names, strict=True):
+            at = coef[(coef["channel"] == channel) & (coef["coefficient"] == name)].iloc[0]
+            for k, (mid, lo, hi, colour, label) in enumerate(marks):
+                m, low, high = (float(at[c]) if at[c] is not None else np.nan for c in (mid, lo, hi))
+                ax.errorbar(
+                    [m], [-k], xerr=[[m - low], [high - m]], fmt="o", ms=4, color=colour, capsize=2, label=label
+                )
+            ax.set(yticks=[], ylim=(-2.6, 0.6))
+            ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4))
+            ax.tick_params(axis="x", labelsize=8)
+            if channel == channels[0]:
+                ax.set_title(name)
+            if name == names[0]:
+                ax.set_ylabel(f"channel {channel}")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=9, frameon=False)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    return _png(fig)
+
+
 def _fig_misfit(misfit: dict | None, holdout: dict | None = None) -> str:
     """The misfit checks (:mod:`bayescal.fitting.misfit`): residual sums per group of rows, each setting's rows
     left out and predicted by the rest (:mod:`bayescal.fitting.holdout`), and the excess scatter."""
@@ -503,6 +540,7 @@ def _html(data, coef, lsq_ref, budget, examples, figures) -> str:
 (absolute: the sphere's common scale uncertainty included; rel: against the sphere's own scale, comparable with
 least squares), beside the least-squares estimate and its 95 % confidence interval.</p>
 {table(coef)}
+{img("coefficients", "coefficients: Bayes beside least squares")}
 <h2>Least squares at the reference setting (seed 000 Table 1 form)</h2>
 {table(lsq_ref)}
 <h2>Response curves</h2>

@@ -39,7 +39,7 @@ def test_report_numbers_equal_summary(report_dir):
     g1 = params["A_abs[G, 1]"]
     for value in (g1["mean"], g1["q2.5"], g1["q97.5"]):
         assert f"{value:.5g}" in html
-    assert html.count("data:image/png;base64,") == 4  # response, residuals, misfit checks, budget (Laplace: no chains)
+    assert html.count("data:image/png;base64,") == 5  # coefficients, response, residuals, misfit, budget (no chains)
     assert "no chains to compare" in html
     md = (report_dir / "report.md").read_text()
     assert f"{g1['mean']:.5g}" in md
@@ -61,7 +61,7 @@ def test_failed_fit_is_flagged(seed000, tmp_path):
     write_report(tmp_path)
     html = (tmp_path / "report.html").read_text()
     assert 'class="failed"' in html and "FIT FAILED" in html and "Do not use these numbers" in html
-    assert html.count("data:image/png;base64,") == 6 and 'alt="rank plots"' in html  # NUTS: arviz's chain plots
+    assert html.count("data:image/png;base64,") == 7 and 'alt="rank plots"' in html  # NUTS: arviz's chain plots
     assert json.loads((tmp_path / "report.json").read_text())["status"] == "FAILED"
 
 
@@ -87,7 +87,7 @@ def test_report_renders_in_headless_chromium(report_dir):
     ).stdout
     # every embedded figure decoded (the page's own check after load), key numbers present in the rendered DOM
     n_images = (report_dir / "report.html").read_text().count("data:image/png;base64,")
-    assert n_images == 4 and re.search(rf'data-images="{n_images}/{n_images}"', dom), "broken or missing images"
+    assert n_images == 5 and re.search(rf'data-images="{n_images}/{n_images}"', dom), "broken or missing images"
     summary = json.loads((report_dir / "summary.json").read_text())
     g1 = next(p for p in summary["parameters"] if p["parameter"] == "A_abs[G, 1]")
     assert f"{g1['mean']:.5g}" in dom and "Diagnostics passed" in dom
@@ -141,9 +141,15 @@ def test_the_figures_are_written_as_pngs_beside_the_report(report_dir, tmp_path)
     out = tmp_path / "cal.html"
     assert main(["report", str(report_dir), "--out", str(out), "--figures"]) == 0
     written = sorted(p.name for p in tmp_path.glob("cal-*.png"))
-    assert written == ["cal-budget.png", "cal-misfit.png", "cal-residuals.png", "cal-response.png"]
+    assert written == [
+        "cal-budget.png",
+        "cal-coefficients.png",
+        "cal-misfit.png",
+        "cal-residuals.png",
+        "cal-response.png",
+    ]
     page = out.read_text()
-    for path in figure_paths(out)[:4]:
+    for path in figure_paths(out)[:5]:
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert base64.b64encode(path.read_bytes()).decode() in page  # the page's own image
     mine = tmp_path / "other"
