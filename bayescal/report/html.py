@@ -252,7 +252,10 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
             ax.fill_between(grid, plo, phi, color=col, alpha=0.12, lw=0)
             ax.fill_between(grid, lo, hi, color=col, alpha=0.35, lw=0)
             ax.plot(grid, med, color=col, lw=1.2, label=f"{t:g} s, gain {g:g}")
-            rel.fill_between(grid[below], (plo - med)[below], (phi - med)[below], color=col, alpha=0.15, lw=0)
+            # relative to the median the credible band is a fill and the predictive one its two edges, dotted:
+            # two fills of one colour could not be told apart where the settings overlap
+            for edge in (plo - med, phi - med):
+                rel.plot(grid[below], edge[below], ls=":", color=col, lw=1.1)
             rel.fill_between(grid[below], (lo - med)[below], (hi - med)[below], color=col, alpha=0.4, lw=0)
             cens = rows["dn_mean"] >= cal.saturation_dn
             ax.plot(rows["stimulus"][~cens], rows["dn_mean"][~cens], "o", color=col, ms=3.5)
@@ -274,20 +277,30 @@ def _fig_response(cal: Calibration, frame: pd.DataFrame, lsq: pd.DataFrame) -> s
         rel.set(xlabel=f"{cal.stimulus} ({cal.unit})", ylabel="DN minus the posterior median")
     handles, labels = axes[0][0].get_legend_handles_labels()
     from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
 
     handles += [
+        Patch(color="0.3", alpha=0.4, lw=0),
+        Patch(color="0.3", alpha=0.12, lw=0),
+        Line2D([], [], ls=":", color="0.3", lw=1.1),
         Line2D([], [], ls=(0, (4, 2)), color="0.15", lw=1.1),
         Line2D([], [], ls="", marker="x", color="k", mew=1.5),
     ]
-    labels += ["least squares (below full scale)", "clipped reading (censored)"]
-    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), fontsize=8, frameon=False)
+    labels += [
+        "95 % credible band (the curve)",
+        "95 % predictive band (a reading), top",
+        "95 % predictive band, bottom",
+        "least squares (below full scale)",
+        "clipped reading (censored)",
+    ]
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), fontsize=10, frameon=False)
     fig.suptitle(
-        "top: posterior median, 95 % credible (dark) and predictive (light) bands, readings, least squares, up to "
-        f"full scale ({full:g} DN); bottom: the same relative to the posterior median, in DN (readings of one "
-        "sphere level share its reading's error, which the bands at a nominal radiance leave out)",
-        fontsize=9,
+        f"top: posterior median and bands, readings and least squares, up to full scale ({full:g} DN)\n"
+        "bottom: the same relative to the posterior median, in DN (readings of one sphere level share its "
+        "reading's error, which the bands at a nominal radiance leave out)",
+        fontsize=10,
     )
-    fig.tight_layout(rect=(0, 0.08, 1, 0.95))
+    fig.tight_layout(rect=(0, 0.12, 1, 0.93))
     return _png(fig)
 
 
@@ -333,11 +346,11 @@ def _fig_residuals(cal: Calibration, frame: pd.DataFrame) -> str:
         fig.suptitle(
             f"{hidden} row(s) within reach of full scale left out: their partial clipping is bracketed by the fit's "
             "likelihood, not predicted by a single reading",
-            fontsize=8,
+            fontsize=10,
         )
     axes[0][0].set_ylabel("(data - model) / predictive sd")
     handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=10, frameon=False)
     fig.tight_layout(rect=(0, 0.1, 1, 1))
     return _png(fig)
 
@@ -438,7 +451,7 @@ def _fig_budget(budget: pd.DataFrame) -> str:
         left += budget[name].to_numpy()
     ax.set(xlabel="share of inverted-radiance variance", xlim=(0, 1))
     ax.invert_yaxis()
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)  # beside the bars
+    ax.legend(fontsize=10, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)  # beside the bars
     return _png(fig)
 
 
