@@ -464,7 +464,10 @@ def _fig_chains(tree, backend: str) -> dict[str, str]:
     from matplotlib import pyplot as plt
 
     out = {}
-    for key, plot in (("trace", azp.plot_trace_dist), ("rank", azp.plot_rank)):
+    # a panel per channel (compact=False), the chains in colour: overlaid on one axis the channels' gains
+    # (18-62 on the example) leave each chain's mixing too thin to see
+    trace = lambda t, **kw: azp.plot_trace_dist(t, compact=False, **kw)  # noqa: E731
+    for key, plot in (("trace", trace), ("rank", azp.plot_rank)):
         pc = plot(tree, var_names=["gain_rel"], backend="matplotlib")
         try:  # the colours are the chains (a panel per channel): say so
             pc.add_legend("chain", title="chain")
