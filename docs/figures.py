@@ -1,7 +1,8 @@
 """Draw the guides' figures (``docs/figures/``) from the shipped example, as a user would get them.
 
 A Laplace fit of the seed-000 example campaign (``bayescal simulate --design seed000 --seed 1``, as in
-getting started), its report with ``--figures``, and the shipped raw frame inverted with it::
+getting started), its report with ``--figures``, the shipped raw frame inverted with it, and the
+shipped EMVA 1288 reference CCD characterised::
 
     python docs/figures.py
 """
@@ -54,6 +55,8 @@ def main() -> None:
         _run("examples", "--copy", "seed000_frame", cwd=cwd)
         _run("invert", "fit", "seed000_frame.tif", "--cfa", "RGGB", "--exposure-s", "0.004", "--out", "radiance", cwd=cwd)
         _inversion(cwd)
+        _run("characterize", "emva_refset001_steps", "--out", "ccd", cwd=cwd)
+        shutil.copyfile(cwd / "ccd" / "photon_transfer.png", HERE / "emva-photon-transfer.png")
     print(f"wrote {sorted(p.name for p in HERE.glob('*.png'))}")
 
 
