@@ -86,8 +86,14 @@ class Objective(NamedTuple):
 
     @classmethod
     def of(cls, potential: Callable) -> Objective:
-        """The objective of ``potential`` (compile once per structure: cache the result per potential)."""
-        return cls(potential, jax.jit(jax.value_and_grad(potential)), jax.jit(jax.hessian(potential)))
+        """The objective of ``potential`` (compile once per structure: cache the result per potential).
+
+        The Hessian differentiates the jitted gradient's program (its jaxpr is traced once), not the
+        potential's Python again: a quarter of the tracing and two thirds of the compilation of
+        ``jax.hessian(potential)`` on a camera's model."""
+        value_and_grad = jax.jit(jax.value_and_grad(potential))
+        hessian = jax.jit(jax.jacfwd(lambda z, data: value_and_grad(z, data)[1]))
+        return cls(potential, value_and_grad, hessian)
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,18 +205,14 @@ def _build(model: Callable, example, obs: str = "obs") -> Program:
         params = constrain_fn(model, (data,), {}, unravel(z))
         return log_likelihood(model, params, data, batch_ndims=0)[obs]
 
-    value_and_grad = jax.jit(jax.value_and_grad(potential))
-    # the Hessian differentiates the jitted gradient's program (its jaxpr is traced once), not the model's
-    # Python again: a quarter of the tracing and two thirds of the compilation of jax.hessian(potential)
-    hessian = jax.jit(jax.jacfwd(lambda z, data: value_and_grad(z, data)[1]))
-
+    smooth = Objective.of(potential)
     return Program(
         model=model,
         z0=z0,
         unravel=unravel,
         potential=computes(jax.jit(potential)),
-        value_and_grad=computes(value_and_grad),
-        hessian=computes(hessian),
+        value_and_grad=computes(smooth.value_and_grad),
+        hessian=computes(smooth.hessian),
         constrain=computes(_in_blocks(jax.jit(jax.vmap(constrain_one, in_axes=(0, None))))),
         unconstrain=computes(jax.jit(unconstrain)),
         loglik=computes(_in_blocks(jax.jit(jax.vmap(loglik_one, in_axes=(0, None))))),
