@@ -39,12 +39,21 @@ from bayescal.model.equation import Reading
 if TYPE_CHECKING:
     from bayescal.model.data import ModelData
 
-__all__ = ["draw", "expected", "score"]
+__all__ = ["draw", "expected", "score", "variance"]
 
 
 def expected(mean: Any, full_scale: float, xp: Any = np) -> Any:
     """The expected reading as the ADC outputs it: ``mean`` clipped to ``0..full_scale``."""
     return Saturation.adc(mean, full_scale, xp)
+
+
+def variance(
+    pixel_variance: Any, signal: Any, *, n_avg: float = 1.0, excess: Any = 0.0, prnu: float = 0.0, extra: Any = 0.0
+) -> Any:
+    """The variance of one reading (DN^2, numpy): the pixels' temporal variance averaged over ``n_avg``
+    pixels x frames, the excess scatter, a single pixel's PRNU at its ``signal``
+    (:meth:`~bayescal.model.components.noise.Noise.reading_variance`) and the noise effects' ``extra``."""
+    return Noise.reading_variance(pixel_variance, n_avg, excess, prnu, np.maximum(signal, 0.0)) + extra
 
 
 def draw(
@@ -95,7 +104,7 @@ def draw(
         mean = Saturation.clipped_mean(mean, spread, full_scale)
         pixel_variance = pixel_variance * kept
         excess = excess * np.sqrt(kept)
-    var = Noise.reading_variance(pixel_variance, n_avg, excess, prnu, signal) + extra
+    var = variance(pixel_variance, signal, n_avg=n_avg, excess=excess, prnu=prnu, extra=extra)
     return Saturation.adc(mean + np.sqrt(var) * normals, full_scale, integer=integer)
 
 

@@ -33,14 +33,15 @@ from bayescal.errors import PosteriorError, SpecError, TableError
 from bayescal.io.fit_folder import FitFolder
 from bayescal.model import kinds, observation
 from bayescal.model.components import (
+    FactorEffect,
     FactorTerm,
     Noise,
+    NoiseEffect,
     NoiseTerm,
     OffsetTerm,
     Response,
     Sphere,
-    factor_terms,
-    noise_terms,
+    effect_terms,
     offset_terms,
 )
 from bayescal.model.components import rolloff as roll
@@ -156,7 +157,7 @@ class Calibration:
         """From a fit directory or its ``posterior.nc`` (spec and measurements are stored in it), or a
         :class:`~bayescal.io.fit_folder.FitFolder` a reader already holds (its posterior is opened once)."""
         folder = path if isinstance(path, FitFolder) else FitFolder.at(path, "a calibration's reader")
-        dt = folder.posterior()
+        dt = folder.posterior
         attrs = dt.attrs
         if attrs.get("kind", kinds.CALIBRATION) != kinds.CALIBRATION:  # a posterior of another model kind
             return kinds.get(str(attrs["kind"])).load_posterior(folder.posterior_path, dt)
@@ -213,7 +214,7 @@ class Calibration:
             charge_nonlinearity=spec.response.nonlinearity_domain == "charge",
             rolloff=Response.rolloff_params({k: flat(v) for k, v in draws.items() if k.startswith("rolloff_")}, spec),
             rolloff_shape=spec.response.rolloff_shape or "knee",
-            noises=noise_terms(spec, draws, frame),
+            noises=effect_terms(spec, draws, frame, NoiseEffect),
             prnu_bound=spec.saturation.prnu_bound,
             level_errors=_level_errors(draws, levels, flat),
         )
@@ -390,10 +391,14 @@ class Calibration:
 
         ``signal`` has the draws on its first axis.
         """
-        excess = self.excess(np.ndim(signal))
-        pixel = self.pixel_var(signal, setting)
-        var = Noise.reading_variance(pixel, n_avg, excess, prnu, np.maximum(signal, 0.0))
-        return var + self.extra_var(channel, setting, signal)
+        return observation.variance(
+            self.pixel_var(signal, setting),
+            signal,
+            n_avg=n_avg,
+            excess=self.excess(np.ndim(signal)),
+            prnu=prnu,
+            extra=self.extra_var(channel, setting, signal),
+        )
 
     def ratio(self, setting: Setting, channel: str | None = None) -> np.ndarray:
         """Stimulus -> effective stimulus per draw: the nominal ``t M g / (t_ref M_ref g_ref)`` times the
@@ -512,7 +517,7 @@ def _calibrated_range(frame, spec: ModelSpec) -> CalibratedRange:
 
 def _factor_terms(spec: ModelSpec, draws: dict, frame, flat) -> tuple[FactorTerm, ...]:
     """The factors on the effective stimulus that predictions apply: the settings', then each factor effect's."""
-    return SettingFactors.terms(draws, frame, spec.reference, flat) + factor_terms(spec, draws, frame)
+    return SettingFactors.terms(draws, frame, spec.reference, flat) + effect_terms(spec, draws, frame, FactorEffect)
 
 
 def _photon_transfer(frame, spec, dark: DarkTerm) -> tuple[float, float]:

@@ -66,9 +66,7 @@ __all__ = [
     "SphereSpec",
     "StimulusFactor",
     "effect",
-    "factor_terms",
-    "offset_effect_terms",
-    "noise_terms",
+    "effect_terms",
     "offset_terms",
     "reported_dims",
     "site_dims",
@@ -94,22 +92,11 @@ def effect(section: str) -> type[Effect]:
     return {e.section: e for e in EFFECTS}[section]
 
 
-def factor_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any) -> tuple[FactorTerm, ...]:
-    """The factor effects in a calibration's predictions, from the reported draws ``(chain, draw, ...)`` and
-    the table they were fitted to (:meth:`FactorEffect.term`)."""
-    terms = (c.term(spec.effect(c.section), spec, draws, frame) for c in EFFECTS if issubclass(c, FactorEffect))
-    return tuple(t for t in terms if t is not None)
-
-
-def offset_effect_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any) -> tuple[OffsetTerm, ...]:
-    """The offset effects in a calibration's predictions (:meth:`OffsetEffect.term`)."""
-    terms = (c.term(spec.effect(c.section), spec, draws, frame) for c in EFFECTS if issubclass(c, OffsetEffect))
-    return tuple(t for t in terms if t is not None)
-
-
-def noise_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any) -> tuple[NoiseTerm, ...]:
-    """The noise effects in a calibration's predictions (:meth:`NoiseEffect.term`)."""
-    terms = (c.term(spec.effect(c.section), spec, draws, frame) for c in EFFECTS if issubclass(c, NoiseEffect))
+def effect_terms(spec: Any, draws: Mapping[str, np.ndarray], frame: Any, kind: type) -> tuple[Any, ...]:
+    """The effects of one kind (:class:`FactorEffect`, :class:`OffsetEffect` or :class:`NoiseEffect`) in a
+    calibration's predictions, from the reported draws ``(chain, draw, ...)`` and the table they were
+    fitted to (:meth:`Effect.term`: a :class:`FactorTerm`, :class:`OffsetTerm` or :class:`NoiseTerm`)."""
+    terms = (c.term(spec.effect(c.section), spec, draws, frame) for c in EFFECTS if issubclass(c, kind))
     return tuple(t for t in terms if t is not None)
 
 
@@ -118,7 +105,7 @@ def offset_terms(
 ) -> tuple[DarkTerm, tuple[OffsetTerm, ...]]:
     """The terms a calibration adds to every reading, from the reported draws ``(chain, draw, ...)``: the
     dark level (``gains``: the gain of each fitted dark column) and the offset effects."""
-    return Dark.term(spec, draws, channels, gains), offset_effect_terms(spec, draws, frame)
+    return Dark.term(spec, draws, channels, gains), effect_terms(spec, draws, frame, OffsetEffect)
 
 
 def site_dims() -> Mapping[str, tuple[str, ...]]:

@@ -17,12 +17,14 @@ Every component fills a place (its ``role``) in the one skeleton of the measurem
 The six core components are the response (``"response"``), the dark level (an ``"offset"``), the
 sphere's level errors (a ``"factor"``), the settings' effective factors (``"settings"``), the noise
 (``"noise"``) and the ADC's clipping (``"observation"``).  An :class:`Effect` is an optional term
-with a spec section of its own, in one of the two open places: a factor on the effective stimulus
-(``"factor"``) or a level added to every reading in DN (``"offset"``, present at zero exposure and
-zero light), a :class:`FactorEffect` or an :class:`OffsetEffect`.  It is added to the model by one line in
+with a spec section of its own, in one of the three open places: a factor on the effective stimulus
+(:class:`FactorEffect`), a level added to every reading in DN (:class:`OffsetEffect`, present at zero
+exposure and zero light) or a variance added to every reading (:class:`NoiseEffect`).  It is added to
+the model by one line in
 :data:`bayescal.model.components.EFFECTS`, and the spec, the data, the assembly, the reported
 quantities, predictions (:class:`~bayescal.posterior.calibration.Calibration`, through its
-:class:`FactorTerm` or :class:`OffsetTerm`) and the simulator all reach it through this protocol.
+:class:`FactorTerm`, :class:`OffsetTerm` or :class:`NoiseTerm`) and the simulator all reach it through
+this protocol.
 """
 
 from __future__ import annotations
