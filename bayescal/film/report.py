@@ -30,12 +30,12 @@ def write_film_report(
     folder = fit_dir if isinstance(fit_dir, FitFolder) else FitFolder.at(fit_dir, "`bayescal report`", (SUMMARY,))
     root = folder.root if folder.root is not None else folder.posterior_path.parent
     out = Path(out) if out is not None else root / "report.html"
-    summary = folder.summary()
+    summary = folder.summary
     try:
         summary["diagnostics"]["verdict"], summary["parameters"]  # noqa: B018 - the keys the report reads
     except (KeyError, TypeError) as exc:
         raise PosteriorError(f"{folder.file(SUMMARY)} is not a film fit's summary ({exc})") from None
-    tree = folder.posterior()
+    tree = folder.posterior
     cal = FilmCalibration.load(folder.posterior_path, tree)
     frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
     params = pd.DataFrame(summary["parameters"])

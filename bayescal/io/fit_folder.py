@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +40,8 @@ LSQ = "lsq.csv"
 
 @dataclass(frozen=True)
 class FitFolder:
-    """A fit's folder (or a bare ``posterior.nc``), checked, with its files read on first use.
+    """A fit's folder (or a bare ``posterior.nc``), checked, with its files read on first use (each once:
+    ``summary`` and ``posterior`` are computed when first asked for and kept).
 
     Attributes
     ----------
@@ -51,7 +53,6 @@ class FitFolder:
 
     root: Path | None
     posterior_path: Path
-    _read: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def at(
@@ -84,36 +85,29 @@ class FitFolder:
             raise PosteriorError(f"{self.posterior_path} is not in a fit folder: it has no {name}")
         return self.root / name
 
+    @cached_property
     def summary(self) -> dict:
-        """``summary.json``, parsed once; a clear error when it is missing or not a bayescal summary."""
-        if "summary" not in self._read:
-            path = self.file(SUMMARY)
-            try:
-                self._read["summary"] = json.loads(path.read_text())
-            except (OSError, UnicodeError, ValueError) as exc:
-                raise PosteriorError(
-                    f"{path} is missing or not a bayescal summary ({type(exc).__name__}: {exc}); re-run `bayescal fit`"
-                ) from None
-        return self._read["summary"]
+        """``summary.json``, parsed on first use; a clear error when it is missing or not a bayescal summary."""
+        path = self.file(SUMMARY)
+        try:
+            return json.loads(path.read_text())
+        except (OSError, UnicodeError, ValueError) as exc:
+            raise PosteriorError(
+                f"{path} is missing or not a bayescal summary ({type(exc).__name__}: {exc}); re-run `bayescal fit`"
+            ) from None
 
+    @cached_property
     def posterior(self) -> Any:
-        """``posterior.nc`` as an ``xarray.DataTree``, opened once; a clear error for a truncated or foreign
-        file."""
-        if "posterior" not in self._read:
-            import xarray as xr
+        """``posterior.nc`` as an ``xarray.DataTree``, opened on first use; a clear error for a truncated or
+        foreign file."""
+        import xarray as xr
 
-            if not self.posterior_path.is_file():
-                raise PosteriorError(f"no posterior at {self.posterior_path}; run `bayescal fit ... --out DIR` first")
-            try:
-                self._read["posterior"] = xr.open_datatree(self.posterior_path)
-            except Exception as exc:  # h5py/xarray raise many types for truncated or foreign files
-                raise PosteriorError(
-                    f"{self.posterior_path} is not a readable posterior file ({type(exc).__name__}: "
-                    f"{str(exc)[:200]}); was it truncated? Re-run `bayescal fit`"
-                ) from None
-        return self._read["posterior"]
-
-    @property
-    def has_posterior(self) -> bool:
-        """Whether the fit wrote a posterior (a least-squares fit does not)."""
-        return self.posterior_path.is_file()
+        if not self.posterior_path.is_file():
+            raise PosteriorError(f"no posterior at {self.posterior_path}; run `bayescal fit ... --out DIR` first")
+        try:
+            return xr.open_datatree(self.posterior_path)
+        except Exception as exc:  # h5py/xarray raise many types for truncated or foreign files
+            raise PosteriorError(
+                f"{self.posterior_path} is not a readable posterior file ({type(exc).__name__}: "
+                f"{str(exc)[:200]}); was it truncated? Re-run `bayescal fit`"
+            ) from None

@@ -104,7 +104,7 @@ def write_report(
     out = Path(out) if out is not None else fit_dir / "report.html"
     folder = FitFolder.at(fit_dir, "`bayescal report`", needs=(SUMMARY, POSTERIOR))
     try:
-        summary = folder.summary()
+        summary = folder.summary
         kind = summary.get("model_kind", kinds.CALIBRATION)
         if kind != kinds.CALIBRATION:  # another model kind reports itself (bayescal.model.kinds)
             return kinds.get(str(kind)).write_report(folder, out, seed)
@@ -120,7 +120,7 @@ def write_report(
 
         check_output_file(*figure_paths(out))
     cal = Calibration.load(folder)  # the posterior opened once: the figures below read the same tree
-    tree = folder.posterior()
+    tree = folder.posterior
     frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
     frame = frame.rename(columns={cal.stimulus: "stimulus"})
     lsq = pd.DataFrame(summary["lsq"])
