@@ -65,6 +65,7 @@ class Departures:
     glow_dn_s2: float = 0.0
     rolloff_shape: str = "knee"  # "knee": S / (1 + (S / S_k)^4)^(1/4); "tanh": S_t tanh(S / S_t)
     bias_dn_per_c: float = 0.0  # the readout bias drifts this many DN per degC (times BIAS_SHARE per channel)
+    flicker_rel: float = 0.0  # the lamp's output in each frame departs from its mean by this relative sd
 
     @classmethod
     def everything(cls) -> Departures:
@@ -184,6 +185,8 @@ class Realisation:
         electrons = np.maximum(signal, 0.0) * cam.electrons_per_dn / gain
         shot = np.sqrt(electrons) / cam.electrons_per_dn * gain
         noise = rng.standard_normal((nf, npx)) * np.sqrt(shot**2 + (cam.read_noise_dn * gain) ** 2)
+        if self.departures.flicker_rel > 0:  # the lamp frame to frame, the same for every pixel of a frame
+            signal = signal * (1.0 + self.departures.flicker_rel * rng.standard_normal((nf, 1)))
         frames = self.dark_dn(channel, exposure_s, gain, drift, temperature_c) + signal + noise
         return float(np.clip(np.round(frames), 0.0, cam.full_scale).mean())
 
