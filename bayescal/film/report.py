@@ -37,7 +37,7 @@ def write_film_report(
         raise PosteriorError(f"{folder.file(SUMMARY)} is not a film fit's summary ({exc})") from None
     tree = folder.posterior
     cal = FilmCalibration.load(folder.posterior_path, tree)
-    frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
+    frame = folder.measurements
     params = pd.DataFrame(summary["parameters"])
     examples = _examples(cal, frame, seed)
     data = {

@@ -18,7 +18,7 @@ from typing import Any, Literal
 from bayescal.errors import SpecError
 from bayescal.io.toml import build, read_toml
 
-__all__ = ["Design", "Block", "Truth", "load_design"]
+__all__ = ["Design", "Block", "Truth", "load_design", "design_toml"]
 
 
 @dataclass(frozen=True)
@@ -127,3 +127,29 @@ def load_design(path: str | os.PathLike) -> Design:
     if design.spec is not None and not Path(design.spec).is_absolute():
         design = dataclasses.replace(design, spec=str(path.parent / design.spec))
     return design
+
+
+def design_toml(design: Design, spec: str | None = None) -> str:
+    """``design`` as the TOML :func:`load_design` reads (blocks in order, the truth's dict keys as
+    strings); ``spec`` replaces the path of its model (written relative to the file's folder)."""
+    from bayescal.io.toml import dumps
+
+    def block(b: Block) -> dict[str, Any]:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(b).items()}
+
+    data: dict[str, Any] = {
+        "spec": spec if spec is not None else design.spec,
+        "channels": list(design.channels),
+        "levels": list(design.levels),
+        "n_frames": design.n_frames,
+        "n_pixels": design.n_pixels,
+        "illuminated": [block(b) for b in design.illuminated],
+        "dark": [block(b) for b in design.dark],
+    }
+    if design.truth is not None:
+        truth = dataclasses.asdict(design.truth)
+        for key, value in truth.items():
+            if isinstance(value, dict):
+                truth[key] = {str(k): (list(v) if isinstance(v, tuple) else v) for k, v in value.items()}
+        data["truth"] = truth
+    return dumps(data)

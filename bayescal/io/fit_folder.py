@@ -97,6 +97,15 @@ class FitFolder:
             ) from None
 
     @cached_property
+    def measurements(self) -> Any:
+        """The measured table the fit was made on (a ``pandas.DataFrame``, its stimulus column under its own
+        name), from the posterior's ``measurements`` group."""
+        tree = self.posterior
+        if "measurements" not in tree.children:
+            raise PosteriorError(f"{self.posterior_path} holds no measurements; was it written by `bayescal fit`?")
+        return tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
+
+    @cached_property
     def posterior(self) -> Any:
         """``posterior.nc`` as an ``xarray.DataTree``, opened on first use; a clear error for a truncated or
         foreign file."""

@@ -169,8 +169,7 @@ class Calibration:
 
         spec = ModelSpec.from_dict(tomllib.loads(attrs["spec_toml"]), source=str(folder.posterior_path))
         post = dt["posterior"]
-        frame = dt["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
-        frame = frame.rename(columns={spec.stimulus: "stimulus"})
+        frame = folder.measurements.rename(columns={spec.stimulus: "stimulus"})
         channels = tuple(str(c) for c in np.asarray(post["channel"]))
         gains = tuple(float(g) for g in np.asarray(post["gain_setting"])) if "gain_setting" in post.coords else ()
         draws = {str(k): np.asarray(post[str(k)]) for k in post.data_vars}

@@ -121,8 +121,7 @@ def write_report(
         check_output_file(*figure_paths(out))
     cal = Calibration.load(folder)  # the posterior opened once: the figures below read the same tree
     tree = folder.posterior
-    frame = tree["measurements"].to_dataset().to_dataframe().reset_index(drop=True)
-    frame = frame.rename(columns={cal.stimulus: "stimulus"})
+    frame = folder.measurements.rename(columns={cal.stimulus: "stimulus"})
     lsq = pd.DataFrame(summary["lsq"])
     coef = _coefficient_table(summary)
     lsq_ref = _lsq_at_reference(lsq, cal, summary)
