@@ -30,11 +30,11 @@ class Check:
 
 
 def _lit(groups: Sequence[Group], counts: np.ndarray) -> list[Group]:
-    return [g for g, n in zip(groups, counts) if n > 0 and not g.dark]
+    return [g for g, n in zip(groups, counts, strict=True) if n > 0 and not g.dark]
 
 
 def _dark(groups: Sequence[Group], counts: np.ndarray) -> list[Group]:
-    return [g for g, n in zip(groups, counts) if n > 0 and g.dark]
+    return [g for g, n in zip(groups, counts, strict=True) if n > 0 and g.dark]
 
 
 def checks_of(groups: Sequence[Group], counts: np.ndarray, order: int, protocol: np.ndarray) -> list[Check]:
@@ -69,7 +69,8 @@ def _fix_misfit(groups, counts, order) -> np.ndarray:
     for g in _lit(groups, counts):
         per_setting.setdefault(g.setting, set()).add(g.level)
     best = max(per_setting, key=lambda s: len(per_setting[s])) if per_setting else None
-    return np.array([not g.dark and (best is None or g.setting == best) and n == 0 for g, n in zip(groups, counts)])
+    pairs = zip(groups, counts, strict=True)
+    return np.array([not g.dark and (best is None or g.setting == best) and n == 0 for g, n in pairs])
 
 
 def _holdout(groups, counts, order) -> bool:

@@ -12,6 +12,7 @@ fit's posterior, and the design is the next block to measure.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -24,13 +25,14 @@ from bayescal._config import computes
 from bayescal.campaign import checks as model_checks
 from bayescal.campaign.grid import Grid
 from bayescal.campaign.information import Linearisation, Targets, linearise
-from bayescal.campaign.search import Costs, greedy
+from bayescal.campaign.search import Costs, cost_of, greedy, pruned, relaxed, trimmed
 from bayescal.errors import SpecError
-from bayescal.inference.laplace import laplace, laplace_draws
-from bayescal.inference.program import program_for
+from bayescal.inference.laplace import LaplaceResult, laplace, laplace_draws
+from bayescal.inference.program import Program, program_for
 from bayescal.inference.start import initial_point
 from bayescal.io.design import Design, load_design
-from bayescal.model.assemble import build_model
+from bayescal.io.table import MeasurementTable
+from bayescal.model.assemble import CalibrationModel, build_model
 from bayescal.model.spec import ModelSpec, load_spec
 
 __all__ = ["CampaignDesign", "design"]
@@ -77,7 +79,7 @@ class CampaignDesign:
         """The chosen groups, one row each: the setting, the level and how many times."""
         levels = self.grid.protocol.levels
         recs = []
-        for g, n in zip(self.grid.groups, self.counts):
+        for g, n in zip(self.grid.groups, self.counts, strict=True):
             if n > 0:
                 recs.append(
                     {
@@ -105,7 +107,9 @@ class CampaignDesign:
             f"the protocol {'has' if 'now_sd' not in w else 'has left'} {self.protocol_rows}."
         )
         lines.append(
-            "Every target reaches its goal." if self.met else f"{int((ratio > 1 + 1e-9).sum())} target(s) stay wider "
+            "Every target reaches its goal."
+            if self.met
+            else f"{int((ratio > 1 + 1e-9).sum())} target(s) stay wider "
             "than their goal: raise the budget or widen the goals."
         )
         worst = w.assign(ratio=ratio).sort_values("ratio", ascending=False).head(5)
@@ -141,7 +145,7 @@ def _targets(grid: Grid, frame: pd.DataFrame, groups: np.ndarray, protocol: Desi
     clip there (``clipped``: per row)."""
     per_setting: dict[tuple, list[int]] = {}
     counts = grid.counts(protocol)
-    for g, n in zip(grid.groups, counts):
+    for g, n in zip(grid.groups, counts, strict=True):
         if n > 0 and not g.dark:
             per_setting.setdefault(g.setting, []).append(g.level)
     rows, names = [], []
@@ -176,6 +180,8 @@ def design(
     setting_cost: float = 0.0,
     draws: int = 1,
     keep_checks: bool = True,
+    after: str | os.PathLike | None = None,
+    block_rows: float | None = None,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
 ) -> CampaignDesign:
@@ -204,6 +210,13 @@ def design(
         Points of the nominal camera's posterior the widths are averaged over (1: its mode).
     keep_checks : bool
         Keep the rows the model's checks need (:mod:`bayescal.campaign.checks`).
+    after : path, optional
+        A fit of the campaign so far (``bayescal fit --out``): the design is the next block to measure,
+        computed at that fit's posterior; the fit's model replaces ``spec``.  ``widths`` then also holds
+        ``now_sd`` and ``protocol_next_sd`` (after the protocol's own next block), and ``done`` says
+        whether the goals are met already.
+    block_rows : float, optional
+        With ``after``: the next block's size in rows (default: the protocol's next block's).
     seed : int
         Seed of the simulated measurement the nominal camera's mode comes from, and of its draws.
     progress : callable, optional
@@ -221,13 +234,73 @@ def design(
     """
     say = progress or (lambda message: None)
     protocol = protocol if isinstance(protocol, Design) else load_design(protocol)
-    spec = _spec(spec, protocol)
-    if protocol.truth is None:
-        raise SpecError("design needs the nominal camera: give the protocol a [truth] table, or use --after FIT")
     grid = Grid.of(protocol)
-    say(f"simulating the whole grid ({len(grid)} groups) of the nominal camera")
+    if after is None:
+        state = _nominal(grid, _spec(spec, protocol), seed, say)
+    else:
+        if block_rows is None and budget_rows is not None:
+            block_rows = budget_rows
+        state = _measured(grid, after, say)
+    points = _points(state.mode, draws, seed)
+    say(f"linearising at {len(points)} point(s)")
+    model, program, groups = state.model, state.program, state.groups
+    targets = _targets(grid, model.table.frame, groups, protocol, _clipped(program, model, points[0]))
+    lin = linearise(program, model, points, targets, groups, len(grid), base=state.base)
+    protocol_counts = grid.counts(protocol)
+    protocol_sd = lin.sd(protocol_counts)
+    goal = _goals(lin.names, protocol_sd, goal_scale, goals)
+    measured = state.measured
+    now_sd = lin.sd(measured)
+    done = after is not None and bool(np.all(now_sd <= goal * (1 + 1e-9)))
+    say("choosing measurements")
+    budget = budget_rows
+    if after is not None:
+        nxt = _protocol_next(grid, protocol, measured)
+        budget = float(block_rows) if block_rows is not None else float(nxt.sum() * len(grid.channels))
+    if done:
+        counts = np.zeros(len(grid), dtype=int)
+    else:
+        counts = _choose(lin, grid, goal, protocol_counts, state.spec, budget, setting_cost, keep_checks, base=measured)
+    sd = lin.sd(measured + counts)
+    columns = {"target": lin.names, "goal_sd": goal, "design_sd": sd, "protocol_sd": protocol_sd}
+    if after is not None:
+        columns |= {"now_sd": now_sd, "protocol_next_sd": lin.sd(measured + nxt)}
+    n_ch = len(grid.channels)
+    left = np.maximum(protocol_counts - measured, 0)
+    return CampaignDesign(
+        design=grid.design(counts),
+        grid=grid,
+        counts=counts,
+        widths=pd.DataFrame(columns),
+        rows=int(counts.sum()) * n_ch,
+        protocol_rows=int(left.sum()) * n_ch,
+        checks=model_checks.checks_of(grid.groups, measured + counts, state.spec.response.order, protocol_counts),
+        met=bool(np.all(sd <= goal * (1 + 1e-9))),
+        done=done,
+    )
+
+
+@dataclass(frozen=True)
+class _State:
+    """What the design is computed from: the model of the grid table, its mode, each row's group, the rows
+    whose information enters as already known (``base``) and the groups measured so far."""
+
+    spec: ModelSpec
+    model: CalibrationModel
+    program: Program
+    mode: LaplaceResult
+    groups: np.ndarray
+    base: np.ndarray | None
+    measured: np.ndarray
+
+
+def _nominal(grid: Grid, spec: ModelSpec, seed: int, say: Callable[[str], None]) -> _State:
+    """The nominal camera (the protocol's truth): the mode of a simulated measurement of the whole grid."""
+    if grid.protocol.truth is None:
+        raise SpecError("design needs the nominal camera: give the protocol a [truth] table, or use --after FIT")
     from bayescal.model.simulate import simulate
 
+    say(f"simulating the whole grid ({len(grid)} groups) of the nominal camera")
     table = simulate(spec, grid.design(np.ones(len(grid), dtype=int)), seed=seed).table
     say("finding the nominal camera's mode")
     model = build_model(table, spec)
@@ -235,31 +308,126 @@ def design(
     mode = laplace(program, model.data, initial_point(model, program))
     if not mode.converged:
         raise SpecError("the nominal camera's simulated grid could not be fitted (its mode search did not converge)")
-    points = _points(mode, draws, seed)
     groups = grid.rows_of(model.table.frame)
-    say(f"linearising at {len(points)} point(s)")
-    targets = _targets(grid, model.table.frame, groups, protocol, _clipped(program, model, points[0]))
-    lin = linearise(program, model, points, targets, groups, len(grid))
-    protocol_counts = grid.counts(protocol)
-    protocol_sd = lin.sd(protocol_counts)
-    goal = _goals(lin.names, protocol_sd, goal_scale, goals)
-    say("choosing measurements")
-    counts = _choose(
-        lin, grid, np.zeros(len(grid), dtype=int), goal, protocol_counts, spec, budget_rows, setting_cost, keep_checks
-    )
-    sd = lin.sd(counts)
-    widths = pd.DataFrame({"target": lin.names, "goal_sd": goal, "design_sd": sd, "protocol_sd": protocol_sd})
-    n_ch = len(grid.channels)
-    return CampaignDesign(
-        design=grid.design(counts),
-        grid=grid,
-        counts=counts,
-        widths=widths,
-        rows=int(counts.sum()) * n_ch,
-        protocol_rows=int(protocol_counts.sum()) * n_ch,
-        checks=model_checks.checks_of(grid.groups, counts, spec.response.order, protocol_counts),
-        met=bool(np.all(sd <= goal * (1 + 1e-9))),
-    )
+    return _State(spec, model, program, mode, groups, None, np.zeros(len(grid), dtype=int))
+
+
+def _measured(grid: Grid, after, say: Callable[[str], None]) -> _State:
+    """A campaign under way: its fit's table, and every grid group not yet measured as a row the model
+    predicts but does not fit (its reading a placeholder: the fit's posterior mean)."""
+    from bayescal.io.fit_folder import FitFolder
+    from bayescal.posterior.calibration import Calibration
+
+    say("reading the campaign's fit")
+    folder = after if isinstance(after, FitFolder) else FitFolder.at(after, "`bayescal design --after`")
+    cal = Calibration.load(folder)
+    import tomllib
+
+    spec = ModelSpec.from_dict(tomllib.loads(folder.posterior.attrs["spec_toml"]), source=str(folder.posterior_path))
+    frame = folder.measurements.rename(columns={spec.stimulus: "stimulus"})
+    missing = [c for c in grid.channels if c not in set(frame["channel"])]
+    if missing:
+        raise SpecError(f"the fit at {folder.posterior_path} has no channel(s) {missing} of the protocol")
+    at = grid.rows_of(frame)
+    first = frame["channel"].to_numpy() == grid.channels[0]
+    measured = np.bincount(at[(at >= 0) & first], minlength=len(grid))
+    todo = [g for g, n in zip(grid.groups, measured, strict=True) if n == 0]
+    candidates = _placeholder_rows(todo, grid, cal, frame)
+    union = pd.concat([frame, candidates], ignore_index=True)
+    fills = {"replicate": 0.0, "time_s": frame.get("time_s", pd.Series([0.0])).max()}
+    if "radiance_u_rel" in frame:
+        fills["radiance_u_rel"] = frame["radiance_u_rel"].median()
+    union = union.fillna({k: v for k, v in fills.items() if k in union})
+    union = union.rename(columns={"stimulus": spec.stimulus})
+    table = MeasurementTable.from_frame(union, source=f"{folder.posterior_path} and the grid's groups not measured")
+    say("finding the campaign's mode")
+    model = build_model(table, spec)
+    program = program_for(model)
+    done = np.arange(len(union)) < len(frame)
+    data = model.data._replace(keep=done)
+    mode = laplace(program, data, initial_point(model, program))
+    if not mode.converged:
+        raise SpecError(f"the campaign's fit at {folder.posterior_path} could not be refitted with the grid's rows")
+    groups = np.concatenate([at, grid.rows_of(candidates)])
+    # measured rows off the grid, or repeating a group, enter with what they were measured as
+    base = done & ((groups < 0) | ~_first_of_group(groups, union["channel"].to_numpy()))
+    model = dataclasses.replace(model, data=data)
+    return _State(spec, model, program, mode, groups, base, measured)
+
+
+def _first_of_group(groups: np.ndarray, channels: np.ndarray) -> np.ndarray:
+    """Rows that are the first of their group in their channel (the one whose information stands for the
+    group's); a repeat of a group is counted, not linearised."""
+    seen: set[tuple[int, str]] = set()
+    out = np.zeros(len(groups), dtype=bool)
+    for r, (k, c) in enumerate(zip(groups, channels, strict=True)):
+        if k >= 0 and (k, c) not in seen:
+            seen.add((k, c))
+            out[r] = True
+    return out
+
+
+def _placeholder_rows(todo: list, grid: Grid, cal, frame: pd.DataFrame) -> pd.DataFrame:
+    """A row per channel of every group not yet measured, its reading the calibration's posterior mean
+    (clipped) and its per-pixel variance the calibration's, its level named as the table names it."""
+    from bayescal.model.setting import Setting
+
+    labels = {float(s): str(lv) for s, lv in zip(frame["stimulus"], frame["level"], strict=True) if s > 0}
+    levels = grid.protocol.levels
+    recs = []
+    for g in todo:
+        setting = Setting(g.exposure_s, g.gain, g.tdi_stages, g.temperature_c)
+        stim = 0.0 if g.dark else float(levels[g.level])
+        for c in grid.channels:
+            dn, var = _placeholder(cal, c, stim, setting)
+            recs.append(
+                {
+                    "channel": c,
+                    "stimulus": stim,
+                    "exposure_s": g.exposure_s,
+                    "gain": g.gain,
+                    "tdi_stages": g.tdi_stages,
+                    **({} if g.temperature_c is None else {"temperature_c": g.temperature_c}),
+                    "level": "dark" if g.dark else labels.get(stim, f"design-L{g.level + 1:02d}"),
+                    "n_frames": grid.protocol.n_frames,
+                    "n_pixels": grid.protocol.n_pixels,
+                    "dn_mean": dn,
+                    "dn_var": var,
+                }
+            )
+    return pd.DataFrame(recs)
+
+
+def _placeholder(cal, channel: str, stimulus: float, setting) -> tuple[float, float]:
+    """The calibration's mean reading (clipped) and per-pixel variance at a setting; at a gain it cannot
+    predict (offsets per gain setting, that gain never dark-measured) the nearest calibrated gain's,
+    scaled by the gain ratio: only a starting value for a row that is predicted, not fitted."""
+    try:
+        reading = cal.reading(channel, np.array([stimulus]), setting, relative=True)
+        scale = 1.0
+    except SpecError:
+        gains = np.asarray(cal.dark.gains, dtype=float)
+        near = float(gains[np.argmin(np.abs(np.log(gains / setting.gain)))])
+        reading = cal.reading(channel, np.array([stimulus]), dataclasses.replace(setting, gain=near), relative=True)
+        scale = setting.gain / near
+    dn = float(np.clip(np.mean(reading.mean) * scale, 0.0, cal.full_scale))
+    var = float(np.mean(cal.pixel_var(np.maximum(reading.signal * scale, 0.0), setting)))
+    return dn, var
+
+
+def _protocol_next(grid: Grid, protocol: Design, measured: np.ndarray) -> np.ndarray:
+    """The protocol's next block: the groups of its first block (in the file's order) not yet measured."""
+    left = np.array(measured, dtype=int)
+    for block in (*protocol.illuminated, *protocol.dark):
+        one = dataclasses.replace(protocol, illuminated=(block,) if block in protocol.illuminated else (), dark=())
+        if block in protocol.dark and block not in protocol.illuminated:
+            one = dataclasses.replace(protocol, illuminated=(), dark=(block,))
+        want = grid.counts(one)
+        todo = np.maximum(want - left, 0)
+        left = np.maximum(left - want, 0)
+        if todo.any():
+            return todo
+    return np.zeros(len(grid), dtype=int)
 
 
 def _clipped(program, model, z: np.ndarray) -> np.ndarray:
@@ -274,7 +442,7 @@ def _spec(spec, protocol: Design) -> ModelSpec:
         return spec
     path = spec if spec is not None else protocol.spec
     if path is None:
-        raise SpecError("no model: give a spec, or a protocol whose file names one (spec = \"...\")")
+        raise SpecError('no model: give a spec, or a protocol whose file names one (spec = "...")')
     return load_spec(path)
 
 
@@ -287,36 +455,53 @@ def _points(mode, draws: int, seed: int) -> np.ndarray:
 def _choose(
     lin: Linearisation,
     grid: Grid,
-    counts: np.ndarray,
     goal: np.ndarray,
     protocol_counts: np.ndarray,
     spec: ModelSpec,
     budget_rows: float | None,
     setting_cost: float,
     keep_checks: bool,
-    spent: float = 0.0,
+    base: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Greedy choice with the checks' rows kept: the cheapest repair of each check the design lacks, then
-    more groups until the goals (or the budget) are met, repeated while a repair was needed."""
+    """The groups to measure beyond ``base`` (those measured already): the continuous optimum
+    (:func:`~bayescal.campaign.search.relaxed`) rounded up (to meet goals) or down (within a budget), groups
+    added greedily until the goals or the budget are met, the checks' groups kept
+    (:mod:`bayescal.campaign.checks`), then what is not needed taken back
+    (:func:`~bayescal.campaign.search.pruned`) or what the budget cannot pay removed
+    (:func:`~bayescal.campaign.search.trimmed`).  Returns the new counts (``base`` excluded)."""
     costs = Costs(len(grid.channels), setting_cost)
     settings = [g.setting for g in grid.groups]
     eligible = lin.clipped < 0.5
-    budget = np.inf if budget_rows is None else float(budget_rows)
     meet = budget_rows is None
+    budget = np.inf if budget_rows is None else float(budget_rows)
     order = spec.response.order
+    base = np.zeros(len(grid), dtype=int) if base is None else np.asarray(base, dtype=int)
+    paid = cost_of(base, costs, settings)
+
+    def spent(counts: np.ndarray) -> float:
+        return cost_of(counts, costs, settings) - paid
+
+    w = relaxed(lin, base, goal, costs.of(settings, set()), eligible, None if meet else budget)
+    counts = base + (np.ceil(w - 0.02) if meet else np.floor(w)).astype(int)
     for _ in range(8):
-        counts, spent = greedy(
-            lin, counts, goal, costs, settings, eligible=eligible, budget=budget, meet=meet, spent=spent
+        counts, _ = greedy(
+            lin, counts, goal, costs, settings, eligible=eligible, budget=budget, meet=meet, spent=spent(counts)
         )
-        if not keep_checks:
-            break
-        repairs = model_checks.missing(grid.groups, counts, order, protocol_counts)
+        repairs = model_checks.missing(grid.groups, counts, order, protocol_counts) if keep_checks else []
         if not repairs:
             break
         for mask in repairs:
-            counts, spent = greedy(
-                lin, counts, goal, costs, settings, eligible=eligible & mask, meet=False, spent=spent, steps=1
+            counts, _ = greedy(
+                lin, counts, goal, costs, settings, eligible=eligible & mask, meet=False, steps=1, spent=spent(counts)
             )
-    return counts
+    kept = {c.name for c in model_checks.checks_of(grid.groups, counts, order, protocol_counts) if c.supported}
 
+    def allowed(trial: np.ndarray) -> bool:
+        now = model_checks.checks_of(grid.groups, trial, order, protocol_counts)
+        return not keep_checks or kept <= {c.name for c in now if c.supported}
 
+    if meet:
+        counts = pruned(lin, counts, goal, costs, settings, base, allowed)
+    else:
+        counts = trimmed(lin, counts, goal, costs, settings, budget + paid, base, allowed)
+    return counts - base

@@ -134,7 +134,7 @@ class Grid:
         pixels, spec and truth."""
         lit: dict[tuple, list[int]] = {}
         dark: list[Group] = []
-        for g, n in zip(self.groups, np.asarray(counts, dtype=int)):
+        for g, n in zip(self.groups, np.asarray(counts, dtype=int), strict=True):
             if n <= 0:
                 continue
             if g.dark:
@@ -146,10 +146,14 @@ class Grid:
             return None if temp is None else (temp,)
 
         illuminated = tuple(
-            Block((t,), (g,), (m,), tuple(sorted(levels)), temps(temp))
-            for (t, g, m, temp, _), levels in lit.items()
+            Block((t,), (g,), (m,), tuple(sorted(levels)), temps(temp)) for (t, g, m, temp, _), levels in lit.items()
         )
-        darks = tuple(Block((g.exposure_s,), (g.gain,), (g.tdi_stages,), None, temps(g.temperature_c)) for g in dark)
+        per_gain: dict[tuple, list[float]] = {}
+        for g in dark:  # one block per gain (and stages, temperature): its exposures, repeats listed again
+            per_gain.setdefault((g.gain, g.tdi_stages, g.temperature_c), []).append(g.exposure_s)
+        darks = tuple(
+            Block(tuple(sorted(ts)), (gain,), (m,), None, temps(temp)) for (gain, m, temp), ts in per_gain.items()
+        )
         return replace(self.protocol, illuminated=illuminated, dark=darks)
 
     def rows_of(self, frame: pd.DataFrame) -> np.ndarray:
@@ -160,7 +164,7 @@ class Grid:
         temp = frame["temperature_c"].to_numpy(dtype=float) if "temperature_c" in frame else np.full(len(frame), np.nan)
         positions = self._positions
         out = np.full(len(frame), -1)
-        cols = zip(frame["exposure_s"], frame["gain"], frame["tdi_stages"], temp, stim)
+        cols = zip(frame["exposure_s"], frame["gain"], frame["tdi_stages"], temp, stim, strict=True)
         for r, (t, g, m, tc, s) in enumerate(cols):
             if s == 0:
                 level = -1

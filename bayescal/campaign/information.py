@@ -89,11 +89,13 @@ class Linearisation:
     gradients : array (S, T, d)
         Their gradients in the unconstrained parameters.
     prior : array (S, d, d)
-        The prior's precision (Hessian of its negative log density).
+        The precision before any group is measured: the prior's (Hessian of its negative log density),
+        with the information of the rows known already (``base`` of :func:`linearise`).
     factors : array (S, K, m, d)
         Group ``k``'s information is ``factors[s, k].T @ factors[s, k]`` (``m``: two per row of the group).
     clipped : array (K,)
-        The chance, at the first point, that a row of the group is clipped (its largest over channels).
+        The chance, at the first point, that the group's reading is clipped in every channel (its smallest
+        over channels: a group informs while one channel reads below full scale).
     """
 
     names: tuple[str, ...]
@@ -147,6 +149,7 @@ def linearise(
     targets: Targets,
     groups: np.ndarray,
     n_groups: int,
+    base: np.ndarray | None = None,
 ) -> Linearisation:
     """The information of each grid group and the targets' gradients at the points ``z`` ``(S, d)``.
 
@@ -162,17 +165,31 @@ def linearise(
         The grid group of each row of the table (-1: a row that is no candidate, e.g. measured elsewhere).
     n_groups : int
         How many groups the grid has.
+    base : array (R,) of bool, optional
+        Rows whose information is known already and enters as the starting precision (the Hessian of the
+        potential with only these rows' readings; none: the prior's); they stand for no group.
+
+    The first row of each group in each channel stands for the group (a repeat is counted, not
+    linearised again).
     """
     z = np.atleast_2d(np.asarray(z, dtype=float))
     d = z.shape[1]
-    groups = np.asarray(groups)
-    per_group = np.bincount(groups[groups >= 0], minlength=n_groups)
+    keep = np.zeros(len(groups), dtype=bool) if base is None else np.asarray(base, dtype=bool)
+    groups = np.where(keep, -1, np.asarray(groups))
+    channel = np.asarray(model.data.channel)
+    stands = np.zeros(len(groups), dtype=bool)
+    seen: set[tuple[int, int]] = set()
+    for r in np.flatnonzero(groups >= 0):
+        if (groups[r], channel[r]) not in seen:
+            seen.add((groups[r], channel[r]))
+            stands[r] = True
+    per_group = np.bincount(groups[stands], minlength=n_groups)
     width = int(per_group.max()) if per_group.size else 0
-    no_data = model.data._replace(keep=np.zeros_like(np.asarray(model.data.keep)))
+    known = model.data._replace(keep=keep)
     threshold = float(np.asarray(model.data.threshold))
     names = targets.names(model)
     values, gradients, priors, factors = [], [], [], []
-    clipped = np.zeros(n_groups)
+    clipped = np.ones(n_groups)
     steps = np.concatenate([np.zeros((1, d)), STEP * np.eye(d), -STEP * np.eye(d)])
     for s, point in enumerate(z):
         sites = _sites(program, model, point[None] + steps)
@@ -187,15 +204,15 @@ def linearise(
         rows = np.concatenate([grad_m * scale[:, None], np.sqrt(2) * grad_s * scale[:, None]], axis=1)
         u = np.zeros((n_groups, 2 * width, d))
         filled = np.zeros(n_groups, dtype=int)
-        for r in np.flatnonzero(groups >= 0):
+        for r in np.flatnonzero(stands):
             k = groups[r]
             u[k, 2 * filled[k]] = rows[r, :d]
             u[k, 2 * filled[k] + 1] = rows[r, d:]
             filled[k] += 1
             if s == 0:
-                clipped[k] = max(clipped[k], 1.0 - kept[r])
+                clipped[k] = min(clipped[k], 1.0 - kept[r])
         factors.append(u)
-        hess = np.asarray(program.hessian(point, no_data))
+        hess = np.asarray(program.hessian(point, known))
         priors.append(_positive(0.5 * (hess + hess.T)))
     return Linearisation(
         names=names,

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from bayescal.cli.calibrate import cmd_demo, cmd_fit, cmd_report, cmd_sbc, cmd_select, cmd_simulate
 from bayescal.cli.characterize import cmd_characterize
+from bayescal.cli.design import cmd_design
 from bayescal.cli.examples import cmd_examples
 from bayescal.cli.fleet import cmd_fleet, cmd_fleet_query, cmd_fleet_simulate
 from bayescal.cli.maps import cmd_maps
@@ -258,6 +259,57 @@ def _simulate(sub) -> None:
     s.set_defaults(func=cmd_simulate)
 
 
+def _design(sub) -> None:
+    """The arguments of ``bayescal design``."""
+    d = sub.add_parser(
+        "design",
+        help="which levels, settings and darks to measure (and how often) to reach the intervals wanted",
+        description="Choose a campaign from a protocol's candidate grid (its illuminated settings at every "
+        "level, its dark settings): the fewest rows whose expected posterior widths (Laplace/Fisher) reach the "
+        "protocol's (times --goal-scale, or --goal), or the narrowest within --budget-rows; with --after FIT, "
+        "the next block to measure.  Exit 3 when the goals cannot be met.",
+    )
+    d.add_argument("protocol", help="the protocol's design TOML (with a [truth] nominal camera), or a shipped name")
+    d.add_argument("--model", help="model spec (default: the protocol's)")
+    d.add_argument("--after", metavar="FIT", help="a fit of the campaign so far: propose the next block")
+    d.add_argument("--block-rows", type=positive, help="with --after: the next block's rows (default: the protocol's)")
+    d.add_argument(
+        "--goal-scale", type=positive, default=1.0, help="goals are the protocol's widths times this (default 1)"
+    )
+    d.add_argument(
+        "--goal",
+        type=goal,
+        action="append",
+        metavar="TARGET=SD",
+        help="the posterior sd wanted for one target (e.g. 'A2[R]=0.0004'); repeatable",
+    )
+    d.add_argument("--budget-rows", type=positive, help="the most rows to measure: the narrowest design within it")
+    d.add_argument(
+        "--setting-cost", type=non_negative, default=0.0, help="rows a change of setting costs (default 0)"
+    )
+    d.add_argument(
+        "--draws", type=positive_int, default=1, help="posterior points the widths are averaged over (default 1)"
+    )
+    d.add_argument(
+        "--no-checks",
+        dest="keep_checks",
+        action="store_false",
+        help="drop the rows the model's checks need (the summary says what is given up)",
+    )
+    d.add_argument("--out", help="output directory: design.toml, groups.csv, widths.csv")
+    d.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
+    d.add_argument("--quiet", action="store_true", help="no stage messages")
+    d.set_defaults(func=cmd_design)
+
+
+def goal(value: str) -> tuple[str, float]:
+    """``TARGET=SD``: a target's name and the posterior standard deviation wanted."""
+    name, sep, number = value.rpartition("=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"expected TARGET=SD (e.g. 'A2[R]=0.0004'), got {value!r}")
+    return name.strip(), positive(number)
+
+
 def _fleet(sub) -> None:
     """The arguments of ``bayescal fleet``."""
     fl = sub.add_parser("fleet", help="calibrate a fleet of cameras over campaigns: each alone, then the hierarchy")
@@ -337,6 +389,7 @@ VERBS = (
     _select,
     _scene,
     _sbc,
+    _design,
     _simulate,
     _fleet,
     _fleet_query,

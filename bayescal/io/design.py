@@ -130,26 +130,37 @@ def load_design(path: str | os.PathLike) -> Design:
 
 
 def design_toml(design: Design, spec: str | None = None) -> str:
-    """``design`` as the TOML :func:`load_design` reads (blocks in order, the truth's dict keys as
-    strings); ``spec`` replaces the path of its model (written relative to the file's folder)."""
-    from bayescal.io.toml import dumps
+    """``design`` as the TOML :func:`load_design` reads, one line per key, one table per block (the
+    truth's dict keys as strings); ``spec`` replaces the path of its model (written relative to the
+    file's folder)."""
+    import json
 
-    def block(b: Block) -> dict[str, Any]:
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(b).items()}
+    def value(v: Any) -> str:
+        if isinstance(v, dict):
+            return "{ " + ", ".join(f"{json.dumps(str(k))} = {value(x)}" for k, x in v.items()) + " }"
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return json.dumps(v)
+        return repr(float(v)) if isinstance(v, float) else str(v)
 
-    data: dict[str, Any] = {
-        "spec": spec if spec is not None else design.spec,
-        "channels": list(design.channels),
-        "levels": list(design.levels),
-        "n_frames": design.n_frames,
-        "n_pixels": design.n_pixels,
-        "illuminated": [block(b) for b in design.illuminated],
-        "dark": [block(b) for b in design.dark],
-    }
+    def table(items: dict[str, Any]) -> list[str]:
+        return [f"{k} = {value(v)}" for k, v in items.items() if v is not None and v != {}]
+
+    lines = table(
+        {
+            "spec": spec if spec is not None else design.spec,
+            "channels": design.channels,
+            "levels": design.levels,
+            "n_frames": design.n_frames,
+            "n_pixels": design.n_pixels,
+        }
+    )
+    for kind, blocks in (("illuminated", design.illuminated), ("dark", design.dark)):
+        for b in blocks:
+            lines += ["", f"[[{kind}]]", *table(dataclasses.asdict(b))]
     if design.truth is not None:
-        truth = dataclasses.asdict(design.truth)
-        for key, value in truth.items():
-            if isinstance(value, dict):
-                truth[key] = {str(k): (list(v) if isinstance(v, tuple) else v) for k, v in value.items()}
-        data["truth"] = truth
-    return dumps(data)
+        lines += ["", "[truth]", *table(dataclasses.asdict(design.truth))]
+    return "\n".join(lines) + "\n"

@@ -166,6 +166,12 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
             "dn_var": np.round(np.maximum(dn_var, QUANTISATION_DN2), 4),
         }
     )
+    conditions = ["channel", spec.stimulus, "exposure_s", "gain", "tdi_stages", "level"]
+    repeat = df.assign(temperature_c=temp).fillna({"temperature_c": -999.0}).groupby(
+        [*conditions, "temperature_c"], sort=False
+    ).cumcount()
+    if repeat.any():  # a design that measures a condition more than once: its repeats are numbered
+        df["replicate"] = repeat.to_numpy(dtype=float)
     table = MeasurementTable.from_frame(df, source=f"simulate(seed={seed})")
     errors = {f"L{i + 1:02d}": float(e) for i, e in enumerate(level_err)}
     return Simulation(table=table, truth=truth, sphere_scale=scale, level_errors=errors)

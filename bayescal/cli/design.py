@@ -1,0 +1,34 @@
+"""The verb that plans a campaign: design."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def cmd_design(args) -> int:
+    from bayescal.campaign.design import design
+    from bayescal.cli.progress import stage_reporter
+    from bayescal.io.outputs import check_output_dir
+
+    if args.out is not None:
+        check_output_dir(args.out, "design")
+    goals = dict(args.goal or [])
+    plan = design(
+        args.protocol,
+        args.model,
+        goals=goals,
+        goal_scale=args.goal_scale,
+        budget_rows=args.budget_rows,
+        setting_cost=args.setting_cost,
+        draws=args.draws,
+        keep_checks=args.keep_checks,
+        after=args.after,
+        block_rows=args.block_rows,
+        seed=args.seed,
+        progress=stage_reporter(args.quiet),
+    )
+    print(plan.summary())
+    if args.out is not None:
+        out = plan.save(Path(args.out))
+        print(f"wrote {out / 'design.toml'} (read by `bayescal simulate --design`), groups.csv and widths.csv")
+    return 0 if plan.met or plan.done or args.after is not None else 3
