@@ -27,8 +27,9 @@ from bayescal.campaign.grid import Grid
 from bayescal.campaign.information import Linearisation, Targets, linearise
 from bayescal.campaign.search import Costs, cost_of, greedy, pruned, relaxed, trimmed
 from bayescal.errors import SpecError
-from bayescal.inference.laplace import LaplaceResult, laplace, laplace_draws
+from bayescal.inference.laplace import LaplaceResult, laplace
 from bayescal.inference.program import Program, program_for
+from bayescal.inference.samplers import laplace_z
 from bayescal.inference.start import initial_point
 from bayescal.io.design import Design, load_design
 from bayescal.io.table import MeasurementTable
@@ -76,6 +77,12 @@ class CampaignDesign:
     done: bool = False
     #: the prediction targets after the coefficients: ``(channel, grid group)`` of each, in ``widths``' order
     predictions: tuple[tuple[str, int], ...] = ()
+    #: without a budget: the rows of the best continuous design (fractional repeats), a lower bound on the
+    #: rows of any design of this grid that meets the goals
+    bound_rows: float | None = None
+    #: ``after`` only: how often each grid group was measured already, and the protocol's next block
+    measured: np.ndarray | None = None
+    protocol_next: np.ndarray | None = None
 
     def groups(self) -> pd.DataFrame:
         """The chosen groups, one row each: the setting, the level and how many times."""
@@ -99,30 +106,41 @@ class CampaignDesign:
     def summary(self) -> str:
         """What a lab manager reads: rows, goals met, the widest targets, the checks given up."""
         w = self.widths
+        after = "now_sd" in w
         ratio = (w["design_sd"] / w["goal_sd"]).to_numpy()
+        groups = int((self.counts > 0).sum())
         lines = []
         if self.done:
             lines.append("The campaign already meets every goal: stop measuring.")
-        what = "next block" if "now_sd" in w else "design"
-        lines.append(
-            f"The {what} measures {self.rows} rows ({int((self.counts > 0).sum())} groups); "
-            f"the protocol {'has' if 'now_sd' not in w else 'has left'} {self.protocol_rows}."
-        )
-        lines.append(
-            "Every target reaches its goal."
-            if self.met
-            else f"{int((ratio > 1 + 1e-9).sum())} target(s) stay wider "
-            "than their goal: raise the budget or widen the goals."
-        )
+        elif after:
+            lines.append(
+                f"Next block: {self.rows} rows ({groups} groups); the protocol has {self.protocol_rows} rows left, "
+                f"its own next block {int(self.protocol_next.sum()) * len(self.grid.channels)}."
+            )
+        else:
+            lines.append(
+                f"The design measures {self.rows} rows ({groups} groups); the protocol has {self.protocol_rows}."
+            )
+        if self.bound_rows is not None and self.met and not after:
+            lines.append(f"No design of this grid meets every goal with fewer than {self.bound_rows:.0f} rows.")
+        unmet = int((ratio > 1 + 1e-9).sum())
+        if self.met:
+            lines.append("Every target reaches its goal" + (" once the block is measured." if after else "."))
+        elif after:
+            lines.append(f"{unmet} target(s) stay wider than their goal after this block: more blocks are needed.")
+        else:
+            lines.append(f"{unmet} target(s) stay wider than their goal: raise the budget or widen the goals.")
         worst = w.assign(ratio=ratio).sort_values("ratio", ascending=False).head(5)
         lines.append("Widest against goal (expected posterior sd):")
         for _, r in worst.iterrows():
+            now = f", now {r['now_sd']:.4g}" if after else ""
             lines.append(
-                f"  {r['target']:<40s} {r['design_sd']:.4g} (goal {r['goal_sd']:.4g}, protocol {r['protocol_sd']:.4g})"
+                f"  {r['target']:<40s} {r['design_sd']:.4g} (goal {r['goal_sd']:.4g}, protocol "
+                f"{r['protocol_sd']:.4g}{now})"
             )
-        given_up = [c for c in self.checks if not c.supported]
-        for c in given_up:
-            lines.append(f"GIVES UP the {c.name} check: it needs {c.needs}.")
+        for c in self.checks:
+            if not c.supported:
+                lines.append(f"GIVES UP the {c.name} check: it needs {c.needs}.")
         return "\n".join(lines)
 
     def save(self, out_dir: str | os.PathLike) -> Path:
@@ -249,7 +267,7 @@ def design(
         if block_rows is None and budget_rows is not None:
             block_rows = budget_rows
         state = _measured(grid, after, say)
-    points = _points(state.mode, draws, seed)
+    points = _points(state, draws, seed)
     say(f"linearising at {len(points)} point(s)")
     model, program, groups = state.model, state.program, state.groups
     targets = _targets(grid, model.table.frame, groups, protocol, _clipped(program, model, points[0]))
@@ -265,10 +283,13 @@ def design(
     if after is not None:
         nxt = _protocol_next(grid, protocol, measured)
         budget = float(block_rows) if block_rows is not None else float(nxt.sum() * len(grid.channels))
+    bound = 0.0
     if done:
         counts = np.zeros(len(grid), dtype=int)
     else:
-        counts = _choose(lin, grid, goal, protocol_counts, state.spec, budget, setting_cost, keep_checks, base=measured)
+        counts, bound = _choose(
+            lin, grid, goal, protocol_counts, state.spec, budget, setting_cost, keep_checks, base=measured
+        )
     sd = lin.sd(measured + counts)
     columns = {"target": lin.names, "goal_sd": goal, "design_sd": sd, "protocol_sd": protocol_sd}
     if after is not None:
@@ -286,6 +307,9 @@ def design(
         met=bool(np.all(sd <= goal * (1 + 1e-9))),
         done=done,
         predictions=tuple((str(model.table.frame["channel"].iloc[r]), int(groups[r])) for r in targets.rows),
+        bound_rows=bound if budget is None else None,
+        measured=None if after is None else measured,
+        protocol_next=None if after is None else nxt,
     )
 
 
@@ -301,6 +325,7 @@ class _State:
     groups: np.ndarray
     base: np.ndarray | None
     measured: np.ndarray
+    centre: np.ndarray
 
 
 def _nominal(grid: Grid, spec: ModelSpec, seed: int, say: Callable[[str], None]) -> _State:
@@ -318,7 +343,20 @@ def _nominal(grid: Grid, spec: ModelSpec, seed: int, say: Callable[[str], None])
     if not mode.converged:
         raise SpecError("the nominal camera's simulated grid could not be fitted (its mode search did not converge)")
     groups = grid.rows_of(model.table.frame)
-    return _State(spec, model, program, mode, groups, None, np.zeros(len(grid), dtype=int))
+    centre = _with_noise_scale(program, model, np.asarray(mode.mode), grid.protocol.truth.excess_dn)
+    return _State(spec, model, program, mode, groups, None, np.zeros(len(grid), dtype=int), centre)
+
+
+def _with_noise_scale(program, model, z: np.ndarray, excess_dn: float) -> np.ndarray:
+    """``z`` with the excess scatter at the nominal camera's (the mode of one simulated grid states it a
+    fifth low on the seed-002 grid: fitted beside every level's and setting's factor, as maximum
+    likelihood states a variance against REML)."""
+    if program.site_index("excess") is None or excess_dn <= 0:
+        return z
+    latent = program.unravel(program.z0)
+    values = {k: np.asarray(v)[0] for k, v in program.constrain(z[None], model.data).items() if k in latent}
+    values["excess"] = np.asarray(excess_dn / model.layout.dn_scale)
+    return np.asarray(program.unconstrain(values, model.data))
 
 
 def _measured(grid: Grid, after, say: Callable[[str], None]) -> _State:
@@ -361,7 +399,10 @@ def _measured(grid: Grid, after, say: Callable[[str], None]) -> _State:
     # measured rows off the grid, or repeating a group, enter with what they were measured as
     base = done & ((groups < 0) | ~_first_of_group(groups, union["channel"].to_numpy()))
     model = dataclasses.replace(model, data=data)
-    return _State(spec, model, program, mode, groups, base, measured)
+    # the posterior mean of the Laplace backend's draws: the excess scatter's scale integrated (the joint
+    # mode under-states it as maximum likelihood does against REML)
+    centre = laplace_z(model, program, mode, 0, {})[0].mean(axis=0)
+    return _State(spec, model, program, mode, groups, base, measured, centre)
 
 
 def _first_of_group(groups: np.ndarray, channels: np.ndarray) -> np.ndarray:
@@ -459,10 +500,13 @@ def _spec(spec, protocol: Design) -> ModelSpec:
     return load_spec(path)
 
 
-def _points(mode, draws: int, seed: int) -> np.ndarray:
+def _points(state: _State, draws: int, seed: int) -> np.ndarray:
+    """Where the information is computed: the state's centre, then ``draws - 1`` of the Laplace backend's
+    draws (the excess scatter's scale integrated, as ``bayescal fit --backend laplace`` reports them)."""
     if draws <= 1:
-        return np.asarray(mode.mode)[None]
-    return np.concatenate([np.asarray(mode.mode)[None], laplace_draws(mode, draws - 1, seed)])
+        return state.centre[None]
+    z = laplace_z(state.model, state.program, state.mode, seed, {})[0]
+    return np.concatenate([state.centre[None], z[: draws - 1]])
 
 
 def _choose(
@@ -475,13 +519,14 @@ def _choose(
     setting_cost: float,
     keep_checks: bool,
     base: np.ndarray | None = None,
-) -> np.ndarray:
+) -> tuple[np.ndarray, float]:
     """The groups to measure beyond ``base`` (those measured already): the continuous optimum
     (:func:`~bayescal.campaign.search.relaxed`) rounded up (to meet goals) or down (within a budget), groups
     added greedily until the goals or the budget are met, the checks' groups kept
     (:mod:`bayescal.campaign.checks`), then what is not needed taken back
     (:func:`~bayescal.campaign.search.pruned`) or what the budget cannot pay removed
-    (:func:`~bayescal.campaign.search.trimmed`).  Returns the new counts (``base`` excluded)."""
+    (:func:`~bayescal.campaign.search.trimmed`).  Returns the new counts (``base`` excluded) and the
+    continuous optimum's rows (a lower bound on any design's rows that meets the goals)."""
     costs = Costs(len(grid.channels), setting_cost)
     settings = [g.setting for g in grid.groups]
     eligible = lin.clipped < 0.5
@@ -517,4 +562,4 @@ def _choose(
         counts = pruned(lin, counts, goal, costs, settings, base, allowed)
     else:
         counts = trimmed(lin, counts, goal, costs, settings, budget + paid, base, allowed)
-    return counts - base
+    return counts - base, float(w.sum() * costs.rows_per_group)

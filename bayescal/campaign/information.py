@@ -133,7 +133,7 @@ class Linearisation:
         current covariances ``cov`` (Woodbury: ``Sigma' = Sigma - Sigma U' (I + U Sigma U')^-1 U Sigma``)."""
         factors = self.factors if groups is None else self.factors[:, groups]
         w = np.einsum("skmd,sde->skme", factors, cov)
-        inner = np.einsum("skmd,skne->skmn", w, factors) + np.eye(factors.shape[2])
+        inner = np.einsum("skmd,sknd->skmn", w, factors) + np.eye(factors.shape[2])
         v = np.einsum("skmd,std->skmt", w, self.gradients)
         return np.einsum("skmt,skmt->skt", v, np.linalg.solve(inner, v))
 
