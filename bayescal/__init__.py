@@ -34,6 +34,10 @@ _LAZY = {
     "Calibration": "bayescal.posterior.calibration",
     "Setting": "bayescal.model.setting",
     "Design": "bayescal.io.design",
+    "CampaignDesign": "bayescal.campaign.design",
+    "design": "bayescal.campaign.design",
+    "DesignCheck": "bayescal.validation.design",
+    "check_design": "bayescal.validation.design",
     "Truth": "bayescal.io.design",
     "load_design": "bayescal.io.design",
     "Diagnostics": "bayescal.inference.diagnostics",
@@ -138,6 +142,7 @@ sys.modules[__name__].__class__ = _Package
 
 
 if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
+    from bayescal.campaign.design import CampaignDesign, design
     from bayescal.characterization.emva1288 import Characterization, characterize, standard_method
     from bayescal.characterization.nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves
     from bayescal.fitting.batch import FitBatch, fit_many
@@ -166,4 +171,5 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from bayescal.prediction.plan import Plan, default_window, plan_exposure
     from bayescal.prediction.readings import predict
     from bayescal.prediction.scene import SceneChoice, choose_for_scene
+    from bayescal.validation.design import DesignCheck, check_design
     from bayescal.validation.sbc import SBCResult, run_sbc

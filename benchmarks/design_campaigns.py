@@ -52,7 +52,7 @@ def one_seed(name: str, campaigns: int, seed: int, lines: list[str], frontier: d
     plan = design(name, seed=seed)
     took = time.perf_counter() - t
     lines += [
-        f"## {name}",
+        f"### {name}",
         "",
         f"Designed to reach every protocol width: **{plan.rows} rows** against the protocol's "
         f"{plan.protocol_rows} ({100 * plan.rows / plan.protocol_rows:.0f} %), all {len(plan.widths)} targets met: "
@@ -118,7 +118,7 @@ def after(campaigns: int, seed: int, lines: list[str]) -> None:
         return float(np.sum((w[col] / w["goal_sd"]) ** 2))
 
     lines += [
-        "## --after: the next block of a half-finished seed-000 campaign",
+        "### --after: the next block of a half-finished seed-000 campaign",
         "",
         f"Measured so far: {sim.table.frame.shape[0]} rows (gain 1 at 4 and 8 ms, darks at gain 1).  The protocol's "
         f"next block: {int(plan.protocol_next.sum()) * 3} rows; the proposed block: {plan.rows} rows "
@@ -182,8 +182,6 @@ def main() -> None:
     args = ap.parse_args()
     bc.enable_numerics()
     lines = [
-        "# Designed campaigns against the protocols",
-        "",
         f"`python benchmarks/design_campaigns.py --campaigns {args.campaigns} --seed {args.seed}`; simulated "
         "campaigns by the model's own simulator (a consistency check of the design's arithmetic, not of the "
         "model), fitted by the Laplace backend.",

@@ -20,6 +20,7 @@ GROUPS = {
     "Fitting": ("bayescal.fitting", "bayescal.model.assemble", "bayescal.inference"),
     "A calibrated camera": ("bayescal.posterior", "bayescal.model.setting"),
     "Predictions, inversion and planning": ("bayescal.prediction",),
+    "Designing a campaign": ("bayescal.campaign", "bayescal.validation.design"),
     "EMVA 1288 and sensor characterisation": ("bayescal.characterization",),
     "Per-pixel maps": ("bayescal.maps",),
     "Fleets over campaigns": ("bayescal.fleet",),

@@ -112,7 +112,7 @@ class CampaignDesign:
         lines = []
         if self.done:
             lines.append("The campaign already meets every goal: stop measuring.")
-        elif after:
+        elif after and self.protocol_next is not None:
             lines.append(
                 f"Next block: {self.rows} rows ({groups} groups); the protocol has {self.protocol_rows} rows left, "
                 f"its own next block {int(self.protocol_next.sum()) * len(self.grid.channels)}."
@@ -178,9 +178,9 @@ def _targets(grid: Grid, frame: pd.DataFrame, groups: np.ndarray, protocol: Desi
                 if r.size and not clipped[r[0]]:
                     clear.append(int(r[0]))
             if clear:
-                r = clear[len(clear) // 2]
-                rows.append(r)
-                names.append(f"DN[{c}] at {grid.groups[groups[r]].label(grid.protocol.levels)}")
+                row = clear[len(clear) // 2]
+                rows.append(row)
+                names.append(f"DN[{c}] at {grid.groups[groups[row]].label(grid.protocol.levels)}")
     return Targets(coefficients=True, rows=tuple(rows), row_names=tuple(names))
 
 
@@ -284,12 +284,18 @@ def design(
         nxt = _protocol_next(grid, protocol, measured)
         budget = float(block_rows) if block_rows is not None else float(nxt.sum() * len(grid.channels))
     bound = 0.0
-    if done:
-        counts = np.zeros(len(grid), dtype=int)
-    else:
+    counts = np.zeros(len(grid), dtype=int)
+    # the search works at the noise scale of the points; the goals are widths with the scale integrated
+    # (Linearisation.sd), so each round tightens the search's goals by what integrating added
+    search_goal = goal * lin.at_scale().sd(protocol_counts) / protocol_sd
+    for _ in range(0 if done else 4):
         counts, bound = _choose(
-            lin, grid, goal, protocol_counts, state.spec, budget, setting_cost, keep_checks, base=measured
+            lin, grid, search_goal, protocol_counts, state.spec, budget, setting_cost, keep_checks, base=measured
         )
+        sd = lin.sd(measured + counts)
+        if budget is not None or np.all(sd <= goal * (1 + 1e-9)):
+            break
+        search_goal = search_goal * np.minimum(1.0, goal / sd)
     sd = lin.sd(measured + counts)
     columns = {"target": lin.names, "goal_sd": goal, "design_sd": sd, "protocol_sd": protocol_sd}
     if after is not None:

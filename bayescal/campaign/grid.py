@@ -62,7 +62,7 @@ def _temps(block: Block) -> tuple[float | None, ...]:
 
 def _groups(design: Design) -> list[Group]:
     """The design's groups in the simulator's row order, repeated where the design repeats them."""
-    out = []
+    out: list[Group] = []
     for block in design.illuminated:
         levels = block.levels if isinstance(block.levels, tuple) else range(len(design.levels))
         for temp in _temps(block):

@@ -20,11 +20,13 @@ posterior point: nothing here restates the measurement equation.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import ndtr
 
+from bayescal.campaign.scale import NoiseScale, integrated_variances
 from bayescal.inference.program import Program
 from bayescal.model.assemble import CalibrationModel
 from bayescal.model.physical import physical_draws
@@ -96,6 +98,9 @@ class Linearisation:
     clipped : array (K,)
         The chance, at the first point, that the group's reading is clipped in every channel (its smallest
         over channels: a group informs while one channel reads below full scale).
+    noise : NoiseScale, optional
+        The excess scatter's scale, integrated out of :meth:`sd` (:mod:`bayescal.campaign.scale`); None:
+        the model has none, or the widths are taken at the points' scale.
     """
 
     names: tuple[str, ...]
@@ -104,6 +109,7 @@ class Linearisation:
     prior: np.ndarray
     factors: np.ndarray
     clipped: np.ndarray
+    noise: NoiseScale | None = None
 
     @property
     def n_groups(self) -> int:
@@ -125,8 +131,17 @@ class Linearisation:
         return np.einsum("std,sde,ste->st", self.gradients, cov, self.gradients)
 
     def sd(self, counts: np.ndarray) -> np.ndarray:
-        """The targets' expected posterior standard deviations ``(T,)``, averaged over the points."""
-        return np.sqrt(np.maximum(self.variances(self.covariance(counts)), 0.0)).mean(axis=0)
+        """The targets' expected posterior standard deviations ``(T,)``, averaged over the points, the
+        noise scale integrated over its expected posterior under the design (when ``noise`` is given)."""
+        if self.noise is None:
+            var = self.variances(self.covariance(counts))
+        else:
+            var = integrated_variances(self.prior, self.factors, self.gradients, self.noise, counts)
+        return np.sqrt(np.maximum(var, 0.0)).mean(axis=0)
+
+    def at_scale(self) -> Linearisation:
+        """The same information with the noise scale held at the points' (what the search optimises)."""
+        return dataclasses.replace(self, noise=None)
 
     def reductions(self, cov: np.ndarray, groups: np.ndarray | None = None) -> np.ndarray:
         """How much measuring each group once more lowers each target's variance, ``(S, K, T)``, under the
@@ -188,7 +203,7 @@ def linearise(
     known = model.data._replace(keep=keep)
     threshold = float(np.asarray(model.data.threshold))
     names = targets.names(model)
-    values, gradients, priors, factors = [], [], [], []
+    values, gradients, priors, factors, row_sds = [], [], [], [], []
     clipped = np.ones(n_groups)
     steps = np.concatenate([np.zeros((1, d)), STEP * np.eye(d), -STEP * np.eye(d)])
     for s, point in enumerate(z):
@@ -203,15 +218,18 @@ def linearise(
         scale = np.sqrt(kept) / sd[0]
         rows = np.concatenate([grad_m * scale[:, None], np.sqrt(2) * grad_s * scale[:, None]], axis=1)
         u = np.zeros((n_groups, 2 * width, d))
+        row_sd = np.zeros((n_groups, width))
         filled = np.zeros(n_groups, dtype=int)
         for r in np.flatnonzero(stands):
             k = groups[r]
             u[k, 2 * filled[k]] = rows[r, :d]
             u[k, 2 * filled[k] + 1] = rows[r, d:]
+            row_sd[k, filled[k]] = sd[0, r]
             filled[k] += 1
             if s == 0:
                 clipped[k] = min(clipped[k], 1.0 - kept[r])
         factors.append(u)
+        row_sds.append(row_sd)
         hess = np.asarray(program.hessian(point, known))
         priors.append(_positive(0.5 * (hess + hess.T)))
     return Linearisation(
@@ -221,7 +239,17 @@ def linearise(
         prior=np.asarray(priors),
         factors=np.asarray(factors),
         clipped=clipped,
+        noise=_noise_scale(program, model, z, np.asarray(row_sds)),
     )
+
+
+def _noise_scale(program: Program, model: CalibrationModel, z: np.ndarray, row_sd: np.ndarray) -> NoiseScale | None:
+    """The excess scatter's coordinate, when the model samples one (``noise.excess_dn > 0``)."""
+    index = program.site_index("excess")
+    if index is None or model.spec.noise.excess_dn <= 0:
+        return None
+    excess = np.asarray(program.constrain(z, model.data)["excess"], dtype=float).reshape(-1)
+    return NoiseScale(index, excess, model.spec.noise.excess_dn / model.layout.dn_scale, row_sd)
 
 
 def _positive(hess: np.ndarray) -> np.ndarray:

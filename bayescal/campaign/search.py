@@ -218,7 +218,7 @@ def pruned(
     goal_var = np.asarray(goals, dtype=float) ** 2
     while True:
         best, best_key = -1, (0.0, -np.inf)
-        for k in np.flatnonzero(counts > keep):
+        for k in map(int, np.flatnonzero(counts > keep)):
             trial = counts.copy()
             trial[k] -= 1
             if not allowed(trial):
@@ -260,7 +260,7 @@ def trimmed(
     goal_var = np.asarray(goals, dtype=float) ** 2
     while cost_of(counts, costs, settings) > budget + 1e-9:
         best, best_score = -1, np.inf
-        for k in np.flatnonzero(counts > keep):
+        for k in map(int, np.flatnonzero(counts > keep)):
             trial = counts.copy()
             trial[k] -= 1
             if not allowed(trial):

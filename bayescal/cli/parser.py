@@ -284,9 +284,7 @@ def _design(sub) -> None:
         help="the posterior sd wanted for one target (e.g. 'A2[R]=0.0004'); repeatable",
     )
     d.add_argument("--budget-rows", type=positive, help="the most rows to measure: the narrowest design within it")
-    d.add_argument(
-        "--setting-cost", type=non_negative, default=0.0, help="rows a change of setting costs (default 0)"
-    )
+    d.add_argument("--setting-cost", type=non_negative, default=0.0, help="rows a change of setting costs (default 0)")
     d.add_argument(
         "--draws", type=positive_int, default=1, help="posterior points the widths are averaged over (default 1)"
     )

@@ -167,9 +167,12 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
         }
     )
     conditions = ["channel", spec.stimulus, "exposure_s", "gain", "tdi_stages", "level"]
-    repeat = df.assign(temperature_c=temp).fillna({"temperature_c": -999.0}).groupby(
-        [*conditions, "temperature_c"], sort=False
-    ).cumcount()
+    repeat = (
+        df.assign(temperature_c=temp)
+        .fillna({"temperature_c": -999.0})
+        .groupby([*conditions, "temperature_c"], sort=False)
+        .cumcount()
+    )
     if repeat.any():  # a design that measures a condition more than once: its repeats are numbered
         df["replicate"] = repeat.to_numpy(dtype=float)
     table = MeasurementTable.from_frame(df, source=f"simulate(seed={seed})")

@@ -129,3 +129,31 @@ def test_checks_follow_the_rows_they_need(counts, supported):
     assert len(repairs) == 4 - len(supported)
     for mask in repairs:  # every repair names groups not yet measured or another setting
         assert mask.any()
+
+
+def test_integrating_the_noise_scale_gives_the_students_t_widths_of_a_linear_model():
+    """y = X b + e with the noise sd unknown (flat priors): the posterior variance of b averages to
+    sigma^2 (X'X)^-1 (n - p) / (n - p - 3) over data sets (sigma^2 given RSS is inverse gamma; E[RSS] =
+    (n - p) sigma^2).  The design's integral reaches that from the expected residuals alone."""
+    from bayescal.campaign.scale import NoiseScale
+
+    rng = np.random.default_rng(3)
+    n, p, sigma = 12, 3, 0.4
+    x = rng.normal(size=(n, p))
+    factors = np.zeros((1, n, 2, p + 1))
+    factors[0, :, 0, :p] = x / sigma  # the mean's gradient over the noise sd
+    factors[0, :, 1, p] = np.sqrt(2.0)  # the sd's gradient in theta = log sd, over the sd, times sqrt 2
+    prior = np.diag([1e-9] * p + [1e-9])
+    noise = NoiseScale(index=p, excess=np.array([sigma]), prior_scale=1e6, row_sd=np.full((1, n, 1), sigma))
+    lin = Linearisation(
+        names=("b0", "b1", "b2"),
+        values=np.zeros((1, p)),
+        gradients=np.eye(p, p + 1)[None],
+        prior=prior[None],
+        factors=factors,
+        clipped=np.zeros(n),
+        noise=noise,
+    )
+    exact = np.sqrt(sigma**2 * np.diag(np.linalg.inv(x.T @ x)) * (n - p) / (n - p - 3))
+    np.testing.assert_allclose(lin.sd(np.ones(n)), exact, rtol=0.01)
+    np.testing.assert_allclose(lin.at_scale().sd(np.ones(n)), exact * np.sqrt((n - p - 3) / (n - p)), rtol=1e-6)

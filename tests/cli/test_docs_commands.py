@@ -46,7 +46,14 @@ def test_readme_commands_run_from_any_folder(tmp_path):
     assert (tmp_path / "fit" / "report.html").is_file() and (tmp_path / "ccd" / "characterization.json").is_file()
 
 
-GUIDES = ["getting-started.md", "guides/emva1288.md", "guides/calibrate.md", "guides/film.md", "guides/fleet.md"]
+GUIDES = [
+    "getting-started.md",
+    "guides/emva1288.md",
+    "guides/calibrate.md",
+    "guides/design.md",
+    "guides/film.md",
+    "guides/fleet.md",
+]
 
 
 @pytest.mark.slow
@@ -69,7 +76,7 @@ def _python_blocks(path: Path) -> list[str]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("page", ["guides/calibrate.md"])
+@pytest.mark.parametrize("page", ["guides/calibrate.md", "guides/design.md"])
 def test_guide_python_blocks_run_from_any_folder(tmp_path, page):
     """Each Python block of a guide runs as written, in a fresh interpreter, from a folder outside the
     repository (the calibrate guide's once named tables it never made)."""
