@@ -1,8 +1,10 @@
 """Draw the guides' figures (``docs/figures/``) from the shipped example, as a user would get them.
 
 A Laplace fit of the seed-000 example campaign (``bayescal simulate --design seed000 --seed 1``, as in
-getting started), its report with ``--figures``, the shipped raw frame inverted with it, and the
-shipped EMVA 1288 reference CCD characterised::
+getting started), its report with ``--figures``, the shipped raw frame inverted with it, the
+shipped EMVA 1288 reference CCD characterised, the same campaign fitted with too low an order (the
+misfit a wrong model shows), the film example's report, a simulated fleet's report and the maps of a
+simulated sensor's stacks (each figure taken from the report's page as a user sees it)::
 
     python docs/figures.py
 """
@@ -18,8 +20,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent / "figures"
 
 
-def _run(*args: str, cwd: Path) -> None:
-    subprocess.run([sys.executable, "-m", "bayescal", *args], cwd=cwd, check=True)
+def _run(*args: str, cwd: Path, check: bool = True) -> None:
+    subprocess.run([sys.executable, "-m", "bayescal", *args], cwd=cwd, check=check)
 
 
 def _inversion(cwd: Path) -> None:
@@ -43,6 +45,39 @@ def _inversion(cwd: Path) -> None:
     fig.savefig(HERE / "invert-frame.png", dpi=110)
 
 
+def _report_figure(html: Path, alt: str, name: str) -> None:
+    """Save the figure of a report page whose ``alt`` text starts with ``alt`` as ``name``."""
+    import base64
+    import re
+
+    text = html.read_text()
+    for found in re.finditer(r'<img alt="([^"]*)" src="data:image/png;base64,([^"]+)">', text):
+        if found.group(1).startswith(alt):
+            (HERE / name).write_bytes(base64.b64decode(found.group(2)))
+            return
+    raise SystemExit(f"{html} has no figure '{alt}'")
+
+
+def _wrong_order(cwd: Path) -> None:
+    """The seed-000 campaign fitted with a linear response (its truth is quadratic), no diagnosis."""
+    _run("examples", "--copy", "seed000_bayer", cwd=cwd)
+    spec = cwd / "seed000_bayer.toml"
+    spec.write_text(spec.read_text().replace("order = 2 ", "order = 1 "))
+    _run("fit", "data.csv", "--model", str(spec), "--backend", "laplace", "--out", "linear", "--quiet",
+         "--no-diagnose", cwd=cwd, check=False)
+    _run("report", "linear", "--figures", cwd=cwd)
+    shutil.copyfile(cwd / "linear" / "report-misfit.png", HERE / "model-choice-misfit.png")
+
+
+def _maps(cwd: Path) -> None:
+    """Maps of a simulated 128 x 128 sensor (bayescal.validation.sensor: PRNU, DSNU, defects)."""
+    from bayescal.validation.sensor import PixelSensor, write_stacks
+
+    write_stacks(PixelSensor(height=128, width=128, defect_fraction=0.003), cwd / "stacks", seed=1)
+    _run("maps", "stacks", "--out", "maps", "--report", cwd=cwd)
+    _report_figure(cwd / "maps" / "maps_report.html", "", "maps-report.png")
+
+
 def main() -> None:
     HERE.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
@@ -57,6 +92,15 @@ def main() -> None:
         _inversion(cwd)
         _run("characterize", "emva_refset001_steps", "--out", "ccd", cwd=cwd)
         shutil.copyfile(cwd / "ccd" / "photon_transfer.png", HERE / "emva-photon-transfer.png")
+        _wrong_order(cwd)
+        _run("examples", "--copy", "seed003", cwd=cwd)
+        _run("fit", "seed003_film_example.csv", "--model", "seed003_film.toml", "--out", "film", "--quiet", cwd=cwd)
+        _run("report", "film", cwd=cwd)
+        _report_figure(cwd / "film" / "report.html", "characteristic curves", "film-curves.png")
+        _run("fleet-simulate", "fleet", "--out", "fleet.csv", "--truth", "truth.csv", cwd=cwd)
+        _run("fleet", "fleet.csv", "--model", "fleet", "--out", "fleet", "--report", "--quiet", cwd=cwd)
+        _report_figure(cwd / "fleet" / "fleet_report.html", "", "fleet-report.png")
+        _maps(cwd)
     print(f"wrote {sorted(p.name for p in HERE.glob('*.png'))}")
 
 
