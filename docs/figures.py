@@ -63,8 +63,20 @@ def _wrong_order(cwd: Path) -> None:
     _run("examples", "--copy", "seed000_bayer", cwd=cwd)
     spec = cwd / "seed000_bayer.toml"
     spec.write_text(spec.read_text().replace("order = 2 ", "order = 1 "))
-    _run("fit", "data.csv", "--model", str(spec), "--backend", "laplace", "--out", "linear", "--quiet",
-         "--no-diagnose", cwd=cwd, check=False)
+    _run(
+        "fit",
+        "data.csv",
+        "--model",
+        str(spec),
+        "--backend",
+        "laplace",
+        "--out",
+        "linear",
+        "--quiet",
+        "--no-diagnose",
+        cwd=cwd,
+        check=False,
+    )
     _run("report", "linear", "--figures", cwd=cwd)
     shutil.copyfile(cwd / "linear" / "report-misfit.png", HERE / "model-choice-misfit.png")
 
@@ -88,10 +100,14 @@ def main() -> None:
         for name in ("coefficients", "response", "residuals", "misfit"):
             shutil.copyfile(cwd / "fit" / f"report-{name}.png", HERE / f"report-{name}.png")
         _run("examples", "--copy", "seed000_frame", cwd=cwd)
-        _run("invert", "fit", "seed000_frame.tif", "--cfa", "RGGB", "--exposure-s", "0.004", "--out", "radiance", cwd=cwd)
+        _run(
+            "invert", "fit", "seed000_frame.tif", "--cfa", "RGGB", "--exposure-s", "0.004", "--out", "radiance", cwd=cwd
+        )
         _inversion(cwd)
         _run("characterize", "emva_refset001_steps", "--out", "ccd", cwd=cwd)
         shutil.copyfile(cwd / "ccd" / "photon_transfer.png", HERE / "emva-photon-transfer.png")
+        _report_figure(cwd / "ccd" / "datasheet.html", "Signal-to-noise ratio", "emva-snr.png")
+        _report_figure(cwd / "ccd" / "datasheet.html", "Linearity", "emva-linearity.png")
         _wrong_order(cwd)
         _run("examples", "--copy", "seed003", cwd=cwd)
         _run("fit", "seed003_film_example.csv", "--model", "seed003_film.toml", "--out", "film", "--quiet", cwd=cwd)

@@ -39,7 +39,7 @@ estimates are compared through the posterior of their difference.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -73,6 +73,12 @@ class Characterization:
     ranges: dict
     dark_current_compatible: bool | None  # None: the dark current is not determined
     source: str
+    #: posterior draws of each fitted curve's coefficients, ``name -> (powers, draws (n, len(powers)))``:
+    #: ``photon_transfer`` (variance against signal), ``sensitivity`` (signal against photons), ``linearity``
+    #: (the standard's straight line over 5-95 % of saturation), ``dark_mean`` (dark level against exposure)
+    curve_draws: dict = field(default_factory=dict)
+    #: the dark frames at several exposures (``texp_s``, ``mean_dn``, ``var_dn2``); None: one exposure only
+    dark: pd.DataFrame | None = None
 
     @property
     def problems(self) -> list[str]:
@@ -382,13 +388,13 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
     if rounding:
         kept = kept[c["s2_y"].to_numpy()[kept] >= ROUNDING_SAFE_DN2]
     what = f"the photon transfer curve (K) {where}" + (" with half a DN of noise or more" if rounding else "")
-    k = _line_posterior(sig[kept], dvar[kept], w_var[kept], n_draws, rng, powers=powers, what=what)
-    k = k[:, powers.index(1)]
+    k_curve = _line_posterior(sig[kept], dvar[kept], w_var[kept], n_draws, rng, powers=powers, what=what)
+    k = k_curve[:, powers.index(1)]
     # the means' step-to-step error: the source's stability (relative to the signal) and, at the darkest
     # steps, the means' own noise and rounding (a floor): weighted 1 / (s^2 + rho), rho from the data, so
     # a step reading a fraction of a DN cannot decide R alone (1 / s^2 gave QE 1.6 % for 55 % on a real
     # 8-bit sensor whose darkest step read 0.0002 DN)
-    resp = _line_posterior(
+    resp_curve = _line_posterior(
         c["photons"].to_numpy()[s],
         sig[s],
         _relative_or_floor(sig[s]),
@@ -397,7 +403,8 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
         powers=powers,
         what=f"the sensitivity curve (R) {where}",
     )
-    resp = resp[:, powers.index(1)]
+    resp = resp_curve[:, powers.index(1)]
+    curve_draws = {"photon_transfer": (powers, k_curve), "sensitivity": (powers, resp_curve)}
     n_pix = c["n_pixels"].iloc[0]
     if not np.isfinite(n_pix):
         n_pix = 640 * 480  # reduced tables carry no pixel count: assume the full VGA frame of the data set
@@ -406,11 +413,14 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
     if _dark_exposures(steps) >= 2:
         dk = steps.dark
         t = dk["texp_s"].to_numpy()
-        i_mean = _line_posterior(t, dk["mean_dn"].to_numpy(), np.ones_like(t), n_draws, rng)[:, 0] / k
+        dark_line = _line_posterior(t, dk["mean_dn"].to_numpy(), np.ones_like(t), n_draws, rng)
+        curve_draws["dark_mean"] = ((1, 0), dark_line)
+        i_mean = dark_line[:, 0] / k
         i_var = _line_posterior(t, dk["var_dn2"].to_numpy(), np.ones_like(t), n_draws, rng)[:, 0] / k**2
     else:
         i_mean = i_var = np.full(n_draws, np.nan)
     lin = _line_posterior(c["photons"].to_numpy()[_lin(r)], sig[_lin(r)], 1.0 / sig[_lin(r)] ** 2, n_draws, rng)
+    curve_draws["linearity"] = ((1, 0), lin)
     le_min, le_max = _linearity_at_extremes(c, r, point, lin[:, 0], lin[:, 1])
     draws = _quantities(k, resp, s2_dark, i_mean, i_var, point["u_p_sat"], le_min, le_max)
     if steps.stack:
@@ -458,7 +468,8 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
             }
         )
     curves = c.assign(signal=sig, var_signal=dvar)
-    return Characterization(pd.DataFrame(rows), point, draws, curves, r, compatible, steps.source)
+    dark = steps.dark.reset_index(drop=True) if determined else None
+    return Characterization(pd.DataFrame(rows), point, draws, curves, r, compatible, steps.source, curve_draws, dark)
 
 
 def _undetermined(name: str) -> str:

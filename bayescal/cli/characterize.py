@@ -6,6 +6,7 @@ import sys
 
 
 def cmd_characterize(args) -> int:
+    from bayescal.characterization.datasheet import write_datasheet
     from bayescal.characterization.emva1288 import characterize, plot_curves
     from bayescal.cli.progress import stage_reporter
     from bayescal.io.emva import load_steps
@@ -25,6 +26,7 @@ def cmd_characterize(args) -> int:
         write_json_atomic(staged("characterization.json"), res.to_dict())
         res.curves.to_csv(staged("curves.csv"), index=False, float_format="%.8g")
         plot_curves(res, staged("photon_transfer.png"))
+        write_datasheet(res, staged("datasheet.html"))
     print(f"EMVA 1288 characterisation of {args.input} (standard point estimate | posterior median [95 %]):")
     print(res.table.to_string(index=False, float_format="%.5g"))
     verdict = {True: "compatible", False: "NOT compatible", None: "not determined (one dark exposure time)"}[

@@ -1,0 +1,197 @@
+"""The EMVA 1288 datasheet as one HTML page: the standard's plots with the posterior's bands drawn on them.
+
+The standard (EMVA 1288 release 4.0, section 8 and its datasheet template) shows the photon transfer
+curve, the sensitivity curve, the SNR curve, the linearity deviation and the dark signal against
+exposure, each with the straight line of its point estimate.  Here each curve also carries the 95 %
+band of its posterior (:func:`bayescal.characterization.emva1288.characterize`: the quartic photon
+transfer and sensitivity curves whose small-signal slopes are K and R, the linearity's straight line,
+the dark level's line in time, the SNR of the fitted K, QE and dark noise), so a reader sees where the
+data leave the straight line and by how much more than the posterior allows.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bayescal.characterization.emva1288 import QUANT, Characterization
+from bayescal.io.files import write_text_atomic
+from bayescal.report.figures import png_base64, subplots
+from bayescal.report.page import escape, image, page, table
+
+__all__ = ["write_datasheet", "snr_band"]
+
+#: the posterior draws drawn into each band (a subset of the characterisation's 4000)
+BAND_DRAWS = 1000
+BAND = "#1f77b4"
+STANDARD = "#d62728"
+
+
+def _poly(powers, coef: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``sum_k b_k x^k`` for each draw's coefficients: ``(draws, len(x))``."""
+    return sum(coef[:, [i]] * x[None, :] ** p for i, p in enumerate(powers))
+
+
+def _band(ax, x: np.ndarray, values: np.ndarray, label: str) -> None:
+    lo, mid, hi = np.quantile(values, [0.025, 0.5, 0.975], axis=0)
+    ax.fill_between(x, lo, hi, color=BAND, alpha=0.25, lw=0, label=f"{label}: 95 % band")
+    ax.plot(x, mid, color=BAND, lw=1.2, label=f"{label}: posterior median")
+
+
+def _draws(res: Characterization, name: str) -> tuple[tuple[int, ...], np.ndarray] | None:
+    found = res.curve_draws.get(name)
+    if found is None:
+        return None
+    powers, coef = found
+    return tuple(powers), np.asarray(coef)[:BAND_DRAWS]
+
+
+def _photon_transfer(res: Characterization) -> str:
+    c, r, p = res.curves, res.ranges, res.standard
+    s = slice(r["index_sensitivity_min"], r["index_sensitivity_max"] + 1)
+    fig, ax = subplots(figsize=(6.4, 4.2))
+    ax.plot(c["signal"], c["var_signal"], "o", ms=3, color="0.55", label="steps")
+    ax.plot(c["signal"][s], c["var_signal"][s], "o", ms=4, color="k", label="fit range (<= 70 % sat.)")
+    x = np.linspace(0.0, float(c["signal"][s].max()), 80)
+    found = _draws(res, "photon_transfer")
+    if found is not None:
+        _band(ax, x, _poly(*found, x), "posterior")
+    ax.plot(x, p["K"] * x, "--", color=STANDARD, label=f"standard: K = {p['K']:.4g} DN/e-")
+    ax.set(xlabel="mean signal mu_y - mu_dark (DN)", ylabel="variance s2_y - s2_dark (DN^2)", title="photon transfer")
+    ax.legend(fontsize=9)
+    return png_base64(fig)
+
+
+def _sensitivity(res: Characterization) -> str:
+    c, r, p = res.curves, res.ranges, res.standard
+    s = slice(r["index_sensitivity_min"], r["index_sensitivity_max"] + 1)
+    fig, ax = subplots(figsize=(6.4, 4.2))
+    ax.plot(c["photons"], c["signal"], "o", ms=3, color="0.55", label="steps")
+    ax.plot(c["photons"][s], c["signal"][s], "o", ms=4, color="k", label="fit range (<= 70 % sat.)")
+    x = np.linspace(0.0, float(c["photons"][s].max()), 80)
+    found = _draws(res, "sensitivity")
+    if found is not None:
+        _band(ax, x, _poly(*found, x), "posterior")
+    ax.plot(x, p["R"] * x, "--", color=STANDARD, label=f"standard: R = {p['R']:.4g} DN/photon")
+    ax.set(xlabel="photons per pixel", ylabel="mean signal mu_y - mu_dark (DN)", title="sensitivity")
+    ax.legend(fontsize=9)
+    return png_base64(fig)
+
+
+def snr_band(res: Characterization, photons: np.ndarray) -> np.ndarray:
+    """The posterior's SNR at ``photons`` per pixel, per draw ``(draws, len(photons))``: the standard's
+    model ``eta mu_p / sqrt(sigma_d^2 + sigma_q^2 / K^2 + eta mu_p)`` with ``eta`` = QE, ``sigma_d`` the
+    dark noise in electrons and ``sigma_q^2 = 1/12 DN^2`` (EMVA 1288 release 4.0, eq. 15)."""
+    qe = np.asarray(res.draws["QE"])[:BAND_DRAWS, None] / 100.0
+    k = np.asarray(res.draws["K"])[:BAND_DRAWS, None]
+    sigma_d = np.asarray(res.draws["sigma_d"])[:BAND_DRAWS, None]
+    signal = qe * photons[None, :]
+    return signal / np.sqrt(sigma_d**2 + QUANT / k**2 + signal)
+
+
+def _snr(res: Characterization) -> str:
+    c = res.curves
+    saturation = float(res.standard.get("u_p_sat", np.inf))
+    # lit and below saturation (a clipped step reads no noise: its SNR means nothing)
+    lit = (c["photons"].to_numpy() > 0) & (c["photons"].to_numpy() <= saturation)
+    photons = c["photons"].to_numpy()[lit]
+    measured = c["signal"].to_numpy()[lit] / np.sqrt(np.maximum(c["s2_y"].to_numpy()[lit], 1e-12))
+    fig, ax = subplots(figsize=(6.4, 4.2))
+    ax.loglog(photons, measured, "o", ms=3, color="k", label="steps: (mu_y - mu_dark) / s_y")
+    x = np.geomspace(photons.min(), photons.max(), 80)
+    if all(name in res.draws for name in ("QE", "K", "sigma_d")):
+        _band(ax, x, snr_band(res, x), "posterior")
+    ax.loglog(x, np.sqrt(x), ":", color="0.4", label="ideal sensor (sqrt mu_p)")
+    ax.set(xlabel="photons per pixel", ylabel="SNR", title="signal-to-noise ratio")
+    ax.legend(fontsize=9)
+    return png_base64(fig)
+
+
+def _linearity(res: Characterization) -> str:
+    c, r = res.curves, res.ranges
+    lo, hi = r["index_linearity_min"], r["index_linearity_max"] + 1
+    x, y = c["photons"].to_numpy()[lo:hi], c["signal"].to_numpy()[lo:hi]
+    a1, a0 = np.polyfit(x, y, 1, w=1.0 / y)
+    line = a1 * x + a0
+    fig, ax = subplots(figsize=(6.4, 4.2))
+    found = _draws(res, "linearity")
+    if found is not None:
+        _band(ax, x, 100 * (_poly(*found, x) - line[None, :]) / line[None, :], "the line's posterior")
+    ax.plot(x, 100 * (y - line) / line, "o-", ms=3, color="k", label="steps against the standard's line")
+    ax.axhline(0, color=STANDARD, lw=0.8, ls="--", label="standard's line")
+    ax.set(xlabel="photons per pixel", ylabel="deviation (%)", title="linearity (5-95 % of saturation)")
+    ax.legend(fontsize=9)
+    return png_base64(fig)
+
+
+def _dark(res: Characterization) -> str | None:
+    found = _draws(res, "dark_mean")
+    if found is None or res.dark is None:
+        return None
+    t, mean = res.dark["texp_s"].to_numpy(), res.dark["mean_dn"].to_numpy()
+    fig, ax = subplots(figsize=(6.4, 4.2))
+    ax.plot(t, mean, "o", ms=4, color="k", label="dark frames")
+    x = np.linspace(0.0, float(t.max()), 60)
+    _band(ax, x, _poly(*found, x), "posterior")
+    slope, intercept = np.polyfit(t, mean, 1)
+    ax.plot(x, intercept + slope * x, "--", color=STANDARD, label=f"least squares: {slope:.4g} DN/s")
+    ax.set(xlabel="exposure time (s)", ylabel="mean dark level mu_dark (DN)", title="dark signal")
+    ax.legend(fontsize=9)
+    return png_base64(fig)
+
+
+def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
+    """Write the datasheet page ``out`` (HTML, figures embedded; written atomically)."""
+    out = Path(out)
+    quantities = res.table.copy()
+    verdict = {True: "compatible", False: "NOT compatible", None: "not determined (one dark exposure time)"}[
+        res.dark_current_compatible
+    ]
+    figures = [
+        ("Photon transfer", _photon_transfer(res)),
+        ("Sensitivity", _sensitivity(res)),
+        ("Signal-to-noise ratio", _snr(res)),
+        ("Linearity", _linearity(res)),
+    ]
+    dark = _dark(res)
+    if dark is not None:
+        figures.append(("Dark signal", dark))
+    body = [
+        "<h1>EMVA 1288 datasheet</h1>",
+        f"<p>{escape(res.source)}: the standard's point estimates beside the posterior median and its 95 % "
+        "interval; on each plot the standard's straight line (dashed) and the posterior's 95 % band.</p>",
+    ]
+    if res.problems:
+        items = "".join(f"<li>{escape(p)}</li>" for p in res.problems)
+        body.append(f'<div class="failed">IMPLAUSIBLE RESULTS<ul>{items}</ul></div>')
+    body += [
+        "<h2>Quantities</h2>",
+        table(_shown(quantities)),
+        f"<p>Dark current from the mean and from the variance: <b>{escape(verdict)}</b> (95 % interval of "
+        "their difference).</p>",
+    ]
+    for title, png in figures:
+        body.append(f"<h2>{escape(title)}</h2>{image(png, title)}")
+    write_text_atomic(out, page("EMVA 1288 datasheet", "\n".join(body)))
+    return out
+
+
+def _shown(q: pd.DataFrame) -> pd.DataFrame:
+    def fmt(v) -> str:
+        return "" if not np.isfinite(v) else f"{v:.4g}"
+
+    return pd.DataFrame(
+        {
+            "quantity": q["quantity"],
+            "unit": q["unit"],
+            "standard": q["standard"].map(fmt),
+            "posterior median": q["median"].map(fmt),
+            "95 % interval": [
+                "" if not np.isfinite(a) else f"[{a:.4g}, {b:.4g}]" for a, b in zip(q["q2.5"], q["q97.5"], strict=True)
+            ],
+            "note": q["note"],
+        }
+    )

@@ -1,0 +1,41 @@
+"""The EMVA 1288 datasheet of the shipped reference CCD (EMVA refset001): the standard's plots with the
+posterior's bands, and an SNR model that describes the real sensor's measured SNR."""
+
+import re
+
+import numpy as np
+import pytest
+
+import bayescal as bc
+from bayescal.characterization.datasheet import snr_band, write_datasheet
+from bayescal.io.resources import example_path
+
+
+@pytest.fixture(scope="module")
+def ccd():
+    return bc.characterize(bc.load_steps(example_path("emva_refset001_steps", "data")), seed=0)
+
+
+def test_the_posterior_snr_describes_the_measured_snr_of_the_real_ccd(ccd):
+    """Between 10 and 70 % of saturation the SNR of the fitted K, QE and dark noise (the standard's
+    eq. 15) is within 3 % of each step's measured (mu_y - mu_dark) / s_y (1.5 % at worst measured)."""
+    c = ccd.curves
+    photons = c["photons"].to_numpy()
+    saturation = ccd.standard["u_p_sat"]
+    inside = (photons > 0.1 * saturation) & (photons < 0.7 * saturation)
+    assert inside.sum() >= 20
+    measured = c["signal"].to_numpy()[inside] / np.sqrt(c["s2_y"].to_numpy()[inside])
+    median = np.median(snr_band(ccd, photons[inside]), axis=0)
+    np.testing.assert_allclose(median, measured, rtol=0.03)
+
+
+def test_the_datasheet_draws_every_plot_with_its_band(ccd, tmp_path):
+    out = write_datasheet(ccd, tmp_path / "datasheet.html")
+    html = out.read_text()
+    alts = re.findall(r'<img alt="([^"]*)" src="data:image/png;base64,', html)
+    assert alts == ["Photon transfer", "Sensitivity", "Signal-to-noise ratio", "Linearity", "Dark signal"]
+    for quantity in ("K", "QE", "sigma_d", "PRNU1288"):
+        assert f"<td>{quantity}</td>" in html
+    # the curves the bands are drawn from: the photon transfer quartic's slope at zero is K's posterior
+    powers, coef = ccd.curve_draws["photon_transfer"]
+    np.testing.assert_allclose(np.median(coef[:, powers.index(1)]), np.median(ccd.draws["K"]), rtol=1e-12)
