@@ -8,7 +8,7 @@ from pathlib import Path
 
 def cmd_examples(args) -> int:
     from bayescal.errors import SpecError
-    from bayescal.io.resources import example_path, examples
+    from bayescal.io.resources import DESCRIPTOR, example_path, examples
 
     shipped = examples()
     if not args.copy:
@@ -33,14 +33,24 @@ def cmd_examples(args) -> int:
             spec = _design_spec(e.path)
             picked += [s for s in shipped if s.path.name == spec and s not in picked]
     target = Path(args.to)
-    clash = [target / e.path.name for e in picked if (target / e.path.name).exists()]
+    clash = [target / _copied(e).name for e in picked if (target / _copied(e).name).exists()]
     if clash:
         raise SpecError(f"{clash[0]} exists; bayescal does not overwrite your files (give another --to)")
     target.mkdir(parents=True, exist_ok=True)
     for e in picked:
-        shutil.copyfile(e.path, target / e.path.name)
-        print(f"copied {e.kind} {e.name} to {target / e.path.name}")
+        if e.path.name == DESCRIPTOR:  # an image set: its folder, descriptor and images together
+            shutil.copytree(e.path.parent, target / e.path.parent.name)
+        else:
+            shutil.copyfile(e.path, target / e.path.name)
+        print(f"copied {e.kind} {e.name} to {target / _copied(e).name}")
     return 0
+
+
+def _copied(e) -> Path:
+    """What copying an example writes: its file, or an image set's folder."""
+    from bayescal.io.resources import DESCRIPTOR
+
+    return Path(e.path.parent.name) if e.path.name == DESCRIPTOR else Path(e.path.name)
 
 
 def _design_spec(path: Path) -> str | None:

@@ -280,8 +280,13 @@ def read_descriptor(path: str | os.PathLike, progress: Callable[[int], None] | N
 
 
 def load_steps(path: str | os.PathLike) -> Steps:
-    """Load a descriptor (``.txt``), the cropped arrays (``.npz``) or a reduced table (``.csv``)."""
+    """Load a descriptor (``.txt``, or the folder that holds ``EMVA1288_Data.txt``), the cropped arrays
+    (``.npz``) or a reduced table (``.csv``)."""
+    from bayescal.io.resources import DESCRIPTOR
+
     path = Path(path)
+    if path.is_dir() and (path / DESCRIPTOR).is_file():
+        path = path / DESCRIPTOR
     if not path.is_file():
         raise TableError(f"no such EMVA 1288 input: {path}" if not path.exists() else f"{path} is not a file")
     if path.suffix.lower() == ".csv":

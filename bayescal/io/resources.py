@@ -44,6 +44,8 @@ class Example:
 
 #: the shipped raw frames' formats
 IMAGES = (".tif", ".fits")
+#: the descriptor of an EMVA 1288 image set shipped as a folder (its images beside it)
+DESCRIPTOR = "EMVA1288_Data.txt"
 
 
 def _kind(path: Path) -> str:
@@ -60,6 +62,15 @@ def _about(path: Path) -> str:
     if path.suffix in IMAGES:
         form = "FITS" if path.suffix == ".fits" else "TIFF"
         return f"a raw RGGB frame of the seed 000 camera at 1/250 s, gain 1 ({form}; models/make_frames.py)"
+    if path.name == DESCRIPTOR:
+        return next(
+            (
+                line.lstrip("# ").strip()
+                for line in path.read_text(encoding="utf-8").splitlines()
+                if line.startswith("#")
+            ),
+            "an EMVA 1288 image set",
+        )
     if path.suffix != ".toml":
         return "example measurements"
     for line in path.read_text(encoding="utf-8").splitlines():
@@ -70,10 +81,15 @@ def _about(path: Path) -> str:
 
 @functools.cache
 def examples() -> tuple[Example, ...]:
-    """Every shipped spec, design and data file, by name (read once per process)."""
+    """Every shipped spec, design and data file, by name (read once per process); an EMVA 1288 image set
+    shipped as a folder goes by the folder's name, its path the descriptor inside it."""
     files = sorted(models_dir().iterdir())
     shipped = (".toml", ".csv", *IMAGES)
-    return tuple(Example(p.stem, _kind(p), p, _about(p)) for p in files if p.suffix in shipped)
+    out = [Example(p.stem, _kind(p), p, _about(p)) for p in files if p.is_file() and p.suffix in shipped]
+    out += [
+        Example(d.name, "data", d / DESCRIPTOR, _about(d / DESCRIPTOR)) for d in files if (d / DESCRIPTOR).is_file()
+    ]
+    return tuple(sorted(out, key=lambda e: e.name))
 
 
 def example_path(name: str | os.PathLike, kind: str) -> Path:
