@@ -142,3 +142,14 @@ def test_the_fit_folder_names_its_files_alone():
             continue
         spelled += [f"{rel}: {s}" for s in _strings(ast.parse(path.read_text())) if s in names]
     assert not spelled, spelled
+
+
+def test_every_package_is_in_the_wheel():
+    """pyproject.toml lists the packages a wheel carries: every folder of bayescal/ with an __init__.py
+    is among them (a package left out installs from a clone and is missing from a wheel)."""
+    import tomllib
+
+    root = PACKAGE.parent
+    listed = set(tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(root).parts) for p in PACKAGE.rglob("__init__.py")}
+    assert found <= listed, sorted(found - listed)
