@@ -75,12 +75,22 @@ def _python_blocks(path: Path) -> list[str]:
     return [m.group(1) for m in re.finditer(r"```python\n(.*?)```", path.read_text(), re.S)]
 
 
+#: every page with a Python block (test_every_python_block_is_run keeps the list whole)
+PYTHON_PAGES = ["README.md", "docs/getting-started.md", "docs/guides/calibrate.md", "docs/guides/design.md"]
+
+
+def test_every_python_block_is_run():
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    with_blocks = {str(p.relative_to(ROOT)) for p in pages if _python_blocks(p)}
+    assert with_blocks <= set(PYTHON_PAGES), sorted(with_blocks - set(PYTHON_PAGES))
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("page", ["guides/calibrate.md", "guides/design.md"])
+@pytest.mark.parametrize("page", PYTHON_PAGES)
 def test_guide_python_blocks_run_from_any_folder(tmp_path, page):
     """Each Python block of a guide runs as written, in a fresh interpreter, from a folder outside the
     repository (the calibrate guide's once named tables it never made)."""
-    blocks = _python_blocks(ROOT / "docs" / page)
+    blocks = _python_blocks(ROOT / page)
     assert blocks, f"{page} has no Python block"
     for code in blocks:
         proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=900)
