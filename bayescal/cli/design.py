@@ -17,7 +17,7 @@ def cmd_design(args) -> int:
         args.protocol,
         args.model,
         goals=goals,
-        goal_scale=args.goal_scale,
+        goal_scale=1.0 if args.goal_scale is None else args.goal_scale,
         budget_rows=args.budget_rows,
         setting_cost=args.setting_cost,
         draws=args.draws,
@@ -31,4 +31,6 @@ def cmd_design(args) -> int:
     if args.out is not None:
         out = plan.save(Path(args.out))
         print(f"wrote {out / 'design.toml'} (read by `bayescal simulate --design`), groups.csv and widths.csv")
-    return 0 if plan.met or plan.done or args.after is not None else 3
+    # goals asked for and not reached: loud (exit 3); a budget alone asks for the narrowest design it buys
+    asked = args.budget_rows is None or bool(args.goal) or args.goal_scale is not None
+    return 3 if asked and not (plan.met or plan.done or args.after is not None) else 0

@@ -267,14 +267,14 @@ def _design(sub) -> None:
         description="Choose a campaign from a protocol's candidate grid (its illuminated settings at every "
         "level, its dark settings): the fewest rows whose expected posterior widths (Laplace/Fisher) reach the "
         "protocol's (times --goal-scale, or --goal), or the narrowest within --budget-rows; with --after FIT, "
-        "the next block to measure.  Exit 3 when the goals cannot be met.",
+        "the next block to measure.  Exit 3 when goals asked for (none, --goal or --goal-scale) cannot be met.",
     )
     d.add_argument("protocol", help="the protocol's design TOML (with a [truth] nominal camera), or a shipped name")
     d.add_argument("--model", help="model spec (default: the protocol's)")
     d.add_argument("--after", metavar="FIT", help="a fit of the campaign so far: propose the next block")
     d.add_argument("--block-rows", type=positive, help="with --after: the next block's rows (default: the protocol's)")
     d.add_argument(
-        "--goal-scale", type=positive, default=1.0, help="goals are the protocol's widths times this (default 1)"
+        "--goal-scale", type=positive, help="goals are the protocol's widths times this (default 1)"
     )
     d.add_argument(
         "--goal",
