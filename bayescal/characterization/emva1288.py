@@ -404,7 +404,10 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
         what=f"the sensitivity curve (R) {where}",
     )
     resp = resp_curve[:, powers.index(1)]
-    curve_draws = {"photon_transfer": (powers, k_curve), "sensitivity": (powers, resp_curve)}
+    curve_draws: dict[str, tuple[tuple[int, ...], np.ndarray]] = {
+        "photon_transfer": (powers, k_curve),
+        "sensitivity": (powers, resp_curve),
+    }
     n_pix = c["n_pixels"].iloc[0]
     if not np.isfinite(n_pix):
         n_pix = 640 * 480  # reduced tables carry no pixel count: assume the full VGA frame of the data set

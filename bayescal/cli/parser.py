@@ -273,9 +273,7 @@ def _design(sub) -> None:
     d.add_argument("--model", help="model spec (default: the protocol's)")
     d.add_argument("--after", metavar="FIT", help="a fit of the campaign so far: propose the next block")
     d.add_argument("--block-rows", type=positive, help="with --after: the next block's rows (default: the protocol's)")
-    d.add_argument(
-        "--goal-scale", type=positive, help="goals are the protocol's widths times this (default 1)"
-    )
+    d.add_argument("--goal-scale", type=positive, help="goals are the protocol's widths times this (default 1)")
     d.add_argument(
         "--goal",
         type=goal,
