@@ -77,8 +77,8 @@ class CampaignDesign:
     done: bool = False
     #: the prediction targets after the coefficients: ``(channel, grid group)`` of each, in ``widths``' order
     predictions: tuple[tuple[str, int], ...] = ()
-    #: without a budget: the rows of the best continuous design (fractional repeats), a lower bound on the
-    #: rows of any design of this grid that meets the goals
+    #: without a budget: the rows of the best continuous design (fractional repeats) at the nominal noise
+    #: scale, a lower bound on the rows of any design of this grid that meets the goals at that scale
     bound_rows: float | None = None
     #: ``after`` only: how often each grid group was measured already, and the protocol's next block
     measured: np.ndarray | None = None
@@ -122,7 +122,10 @@ class CampaignDesign:
                 f"The design measures {self.rows} rows ({groups} groups); the protocol has {self.protocol_rows}."
             )
         if self.bound_rows is not None and self.met and not after:
-            lines.append(f"No design of this grid meets every goal with fewer than {self.bound_rows:.0f} rows.")
+            lines.append(
+                f"With fractional repeats and the noise scale known, {self.bound_rows:.0f} rows would do; whole "
+                "repeats and the noise scale the campaign must estimate cost the rest."
+            )
         unmet = int((ratio > 1 + 1e-9).sum())
         if self.met:
             lines.append("Every target reaches its goal" + (" once the block is measured." if after else "."))
