@@ -90,8 +90,10 @@ class FitBatch:
         outlier, misfit and leave-one-setting-out checks, least-squares baseline, ``save`` and reports)."""
         model = self.models[i]
         spec = model.spec
+        t = time.perf_counter()
         lsq = lsq_baseline(model.table, orders=range(1, spec.response.order + 1), full_scale=spec.full_scale)
         timings = dict(self.timings) if len(self) == 1 else {"batch_" + k: v for k, v in self.timings.items()}
+        timings["lsq"] = time.perf_counter() - t
         return finish(
             model, self.program, self.samples[i], self.backend, self.seeds[i], self.modes[i], lsq, timings, strict
         )

@@ -103,7 +103,7 @@ def holdout_checks(
         idx = np.flatnonzero(mask & ~censored)
         if idx.size == 0:
             continue
-        result = laplace(program, data._replace(keep=np.asarray(data.keep) & ~mask), mode)
+        result = laplace(program, data._replace(keep=np.asarray(data.keep) & ~mask), mode, polish=False)
         if not (result.positive_definite and result.converged):
             failed[position] = {"kind": kind, "group": name, "n": int(idx.size), "z": float("nan"), "refit": "failed"}
         else:

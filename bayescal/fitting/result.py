@@ -11,6 +11,7 @@ DataTree that ``posterior.nc`` holds.  Every path to a fit (:func:`~bayescal.fit
 from __future__ import annotations
 
 import os
+import time
 import warnings
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -64,7 +65,11 @@ class Fit:
     lsq : pandas.DataFrame
         The papers' least-squares fits per channel and setting.
     timings : dict
-        Wall seconds of the stages.
+        Wall seconds of the stages: ``prepare`` (data to arrays), ``map`` (the mode), the backend's
+        sampler (``laplace``, ``nuts``, ...), ``lsq`` (the least-squares baseline), ``posterior`` (draws
+        to physical quantities and the pointwise log-likelihood), ``checks`` (verdict, outliers,
+        misfit), ``holdout`` (the leave-one-setting-out refits) and ``tree`` (the arviz DataTree);
+        a batch's shared stages carry the prefix ``batch_``.
     """
 
     model: CalibrationModel
@@ -235,20 +240,29 @@ def finish(model, program, draws, backend: str, seed: int, result, lsq, timings:
     physical units and the arviz DataTree."""
     spec, table = model.spec, model.table
     z, stats = draws.z, draws.stats
+    timings = dict(timings)
+    t = time.perf_counter()
     post, rows = _posterior(model, program, z, seed)
+    chains, n, dim = np.shape(z)
+    loglik = np.asarray(program.loglik(np.asarray(z).reshape(-1, dim), model.data)).reshape(chains, n, -1)
+    draws = replace(draws, loglik=loglik)
+    timings["posterior"] = time.perf_counter() - t
+    t = time.perf_counter()
     diag = backends.get(backend).verdict(draws, post, spec, result)
     if not result.positive_definite:
         diag = diag.with_check("identified", [NOT_IDENTIFIED], {"hessian_positive_definite": False})
     diag = _check_outliers(model, rows, diag)
     diag = _check_misfit(model, rows, post, diag)
+    timings["checks"] = time.perf_counter() - t
     if spec.inference.holdout_check and result.positive_definite:
+        t = time.perf_counter()
         diag = _check_holdout(model, program, result.mode, seed, diag)
+        timings["holdout"] = time.perf_counter() - t
+    t = time.perf_counter()
     if not diag.ok:
         fail(strict, f"fit failed its diagnostics: {diag.verdict}")
     with warnings.catch_warnings():  # emcee has more walkers than thinned draws, by design
         warnings.filterwarnings("ignore", "Found chain dimension", UserWarning)
-        chains, n, dim = np.shape(z)
-        loglik = np.asarray(program.loglik(np.asarray(z).reshape(-1, dim), model.data)).reshape(chains, n, -1)
         import arviz_base
 
         dt = arviz_base.from_dict(
@@ -262,6 +276,7 @@ def finish(model, program, draws, backend: str, seed: int, result, lsq, timings:
         )
     dt.attrs.update(spec_toml=spec.to_toml(), backend=backend, seed=seed, bayescal_version=__version__)
     dt["measurements"] = xr.DataTree(_table_dataset(table))
+    timings["tree"] = time.perf_counter() - t
     return Fit(model, backend, seed, dt, diag, lsq, timings)
 
 

@@ -43,7 +43,13 @@ class LaplaceResult:
 
 
 @computes
-def find_map(program: Program | Smooth, data: ProgramData, z0: np.ndarray | jax.Array | None = None, rounds: int = 4):
+def find_map(
+    program: Program | Smooth,
+    data: ProgramData,
+    z0: np.ndarray | jax.Array | None = None,
+    rounds: int = 4,
+    polish: bool = True,
+):
     """Minimise the potential: damped Newton steps in Hessian-whitened coordinates, BFGS rounds if needed.
 
     The one mode search of a camera's fit and of the fleet's stage two: ``program`` is a model's
@@ -58,18 +64,28 @@ def find_map(program: Program | Smooth, data: ProgramData, z0: np.ndarray | jax.
     ``|P' g|^2`` is negligible.  It uses only the program's value, gradient and Hessian, which
     every fit compiles anyway.  Should it not converge in :data:`NEWTON_STEPS` steps (a start on
     a plateau far from the mode), up to ``rounds`` rounds of BFGS in the whitened coordinates
-    take over from where it stopped.
+    take over from where it stopped.  ``polish=False`` stops as soon as the mode counts as
+    converged (squared decrement below :data:`CONVERGED_DECREMENT`: the potential within 5e-9 of its
+    minimum, the mode within 1e-4 posterior sds), without the full steps that take it to rounding
+    level: what a check that compares readings with several sds needs (the leave-one-setting-out
+    refits of :mod:`bayescal.fitting.holdout`).
 
     Returns ``(z_map, converged, steps)``.
     """
+    z, converged, steps, _ = _search(program, data, z0, rounds, polish)
+    return z, converged, steps
+
+
+def _search(program, data, z0, rounds: int, polish: bool):
+    """:func:`find_map`, with the Hessian at the mode when Newton's last step computed it (else None)."""
     if z0 is None:
         if not isinstance(program, Program):
             raise TypeError("find_map needs a start z0 for a potential that is not a model's program")
         z0 = program.z0
     z = np.asarray(z0, dtype=float)
-    z, converged, steps = _newton(program, data, z)
+    z, converged, steps, hess = _newton(program, data, z, POLISH_STEPS if polish else 0)
     if converged:
-        return jnp.asarray(z), True, steps
+        return jnp.asarray(z), True, steps, hess
     zj = jnp.asarray(z)
     for _ in range(rounds):
         precond = _whitening(np.asarray(program.hessian(zj, data)))
@@ -81,7 +97,7 @@ def find_map(program: Program | Smooth, data: ProgramData, z0: np.ndarray | jax.
         if float(step @ step) < 1e-8:
             converged = True
             break
-    return zj, converged, steps
+    return zj, converged, steps, None
 
 
 #: Newton steps before the BFGS rounds take over
@@ -102,11 +118,13 @@ POLISH_STEPS = 2
 EIGENVALUE_FLOOR = 1e-13
 
 
-def _newton(program: Program | Smooth, data: ProgramData, z: np.ndarray) -> tuple[np.ndarray, bool, int]:
-    """Damped saddle-free Newton from ``z``: ``(z, converged, steps)``.
+def _newton(
+    program: Program | Smooth, data: ProgramData, z: np.ndarray, polish_steps: int = POLISH_STEPS
+) -> tuple[np.ndarray, bool, int, np.ndarray | None]:
+    """Damped saddle-free Newton from ``z``: ``(z, converged, steps, Hessian at z or None)``.
 
     Once the squared Newton decrement is below :data:`CONVERGED_DECREMENT` the iterate is in the
-    quadratic regime: up to :data:`POLISH_STEPS` full steps then polish it (no line search, whose
+    quadratic regime: up to ``polish_steps`` full steps then polish it (no line search, whose
     test would be decided by the rounding of the potential there) while they still shrink the
     decrement below :data:`NEWTON_DECREMENT`.
     """
@@ -114,18 +132,20 @@ def _newton(program: Program | Smooth, data: ProgramData, z: np.ndarray) -> tupl
     polish = 0
     for step in range(NEWTON_STEPS):
         if not (np.isfinite(value) and np.all(np.isfinite(grad))):
-            return z, False, step
-        precond = _whitening(np.asarray(program.hessian(z, data)))
+            return z, False, step, None
+        hess = np.asarray(program.hessian(z, data))
+        precond = _whitening(hess)
         g_w = precond.T @ grad  # the gradient in whitened coordinates
         decrement = float(g_w @ g_w)
-        if decrement < NEWTON_DECREMENT or polish == POLISH_STEPS:
-            return z, decrement < CONVERGED_DECREMENT, step
+        polished = polish == polish_steps if polish_steps else decrement < CONVERGED_DECREMENT
+        if decrement < NEWTON_DECREMENT or polished:
+            return z, decrement < CONVERGED_DECREMENT, step, hess
         direction = -(precond @ g_w)
         if decrement < CONVERGED_DECREMENT:  # quadratic regime: a full step
             trial = z + direction
             v, g = (np.asarray(a) for a in program.value_and_grad(trial, data))
             if not (np.isfinite(v) and np.all(np.isfinite(g))):
-                return z, True, step
+                return z, True, step, hess
             polish += 1
             z, value, grad = trial, v, g
             continue
@@ -137,9 +157,9 @@ def _newton(program: Program | Smooth, data: ProgramData, z: np.ndarray) -> tupl
                 break
             t *= 0.5
         else:  # no step decreases the potential: leave it to BFGS
-            return z, False, step
+            return z, False, step, None
         z, value, grad = trial, v, g
-    return z, False, NEWTON_STEPS
+    return z, False, NEWTON_STEPS, None
 
 
 def _whitening(hess, xp=np):
@@ -207,10 +227,15 @@ def _batched_map(program: Program, rounds: int):
 
 
 @computes
-def laplace(program: Program, data: ProgramData, z0: np.ndarray | jax.Array | None = None) -> LaplaceResult:
-    """Mode and Gaussian covariance (inverse Hessian) of the posterior, searched from ``z0``."""
-    z_map, converged, steps = find_map(program, data, z0)
-    return _gaussian_at(program, data, z_map, converged, steps, np.asarray(program.hessian(z_map, data)))
+def laplace(
+    program: Program, data: ProgramData, z0: np.ndarray | jax.Array | None = None, polish: bool = True
+) -> LaplaceResult:
+    """Mode and Gaussian covariance (inverse Hessian) of the posterior, searched from ``z0``
+    (``polish``: see :func:`find_map`)."""
+    z_map, converged, steps, hess = _search(program, data, program.z0 if z0 is None else z0, 4, polish)
+    if hess is None:
+        hess = np.asarray(program.hessian(z_map, data))
+    return _gaussian_at(program, data, z_map, converged, steps, hess)
 
 
 @computes
@@ -313,9 +338,14 @@ def integrated_draws(
     step = 11.0 * sd / (grid - 1)
     found: dict[float, tuple] = {}
 
+    # the rest's conditional mode moves with theta as the Gaussian's regression on it predicts: each grid
+    # point starts from its nearest neighbour's mode moved along that slope (one Newton step fewer per point)
+    slope = result.cov[:, index] / result.cov[index, index]
+
     def conditional(theta: float) -> None:
         nearest = min(found, key=lambda t: abs(t - theta), default=None)
-        z = (found[nearest][0] if nearest is not None else result.mode).copy()
+        start = found[nearest][0] if nearest is not None else result.mode
+        z = start + slope * (theta - start[index])
         z[index] = theta
         for step in range(newton_steps + 1):  # the value, gradient and Hessian at the point it stops at
             value, grad = program.value_and_grad(jnp.asarray(z), data)

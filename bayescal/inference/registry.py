@@ -57,6 +57,9 @@ class Draws:
     divergences: int = 0
     stats: dict = field(default_factory=dict)  # per-draw sampler statistics (arviz sample_stats)
     extra: dict = field(default_factory=dict)  # diagnostics entries
+    #: pointwise log-likelihood ``(chain, draw, row)``, computed once when the fit is finished (the
+    #: verdict and the DataTree's ``log_likelihood`` group both read it)
+    loglik: np.ndarray | None = None
 
 
 class Tuned(Protocol):

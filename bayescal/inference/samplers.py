@@ -144,15 +144,16 @@ class LaplaceBackend(OneByOne):
     ) -> Draws:
         extra: dict = {}
         z = laplace_z(model, program, mode, seed, extra)
-        # only the totals are kept: a batch of many datasets (SBC) would otherwise hold every row's values
-        extra["draws_far_off"] = far_fraction(np.asarray(program.loglik(z[0], model.data)), z.shape[-1])
         return Draws(z, extra=extra)
 
     def verdict(
         self, draws: Draws, posterior: Mapping[str, np.ndarray], spec: Tuned, mode: LaplaceResult
     ) -> Diagnostics:
-        problems = laplace_problems(mode, draws.extra)
-        return Diagnostics(not problems, tuple(problems), extra=draws.extra)
+        extra = dict(draws.extra)
+        if draws.loglik is not None:  # the pointwise log-likelihood the finished fit computed once
+            extra["draws_far_off"] = far_fraction(draws.loglik[0], draws.z.shape[-1])
+        problems = laplace_problems(mode, extra)
+        return Diagnostics(not problems, tuple(problems), extra=extra)
 
 
 @dataclass(frozen=True)
