@@ -23,7 +23,15 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["numerics", "computes", "enable_float64", "enable_compilation_cache", "enable_numerics", "cache_dir"]
+__all__ = [
+    "numerics",
+    "computes",
+    "enable_float64",
+    "enable_compilation_cache",
+    "enable_numerics",
+    "cache_dir",
+    "usable_cache_dir",
+]
 
 #: JAX settings bayescal changes inside :func:`numerics`: name -> value (None: the cache's, decided on entry)
 _SETTINGS = ("jax_enable_x64", "jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
@@ -45,7 +53,7 @@ def cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "bayescal" / "jax"
 
 
-def _usable_cache_dir() -> str | None:
+def usable_cache_dir() -> str | None:
     """bayescal's cache directory, or None when disabled (``BAYESCAL_NO_CACHE``) or not writable."""
     if os.environ.get("BAYESCAL_NO_CACHE"):
         return None
@@ -72,7 +80,7 @@ def numerics() -> Iterator[None]:
             _SAVED.update({name: getattr(jax.config, name) for name in _SETTINGS})
             jax.config.update("jax_enable_x64", True)
             _OWN_CACHE = False
-            if _SAVED["jax_compilation_cache_dir"] is None and (path := _usable_cache_dir()) is not None:
+            if _SAVED["jax_compilation_cache_dir"] is None and (path := usable_cache_dir()) is not None:
                 jax.config.update("jax_compilation_cache_dir", path)
                 jax.config.update("jax_persistent_cache_min_compile_time_secs", _MIN_COMPILE_S)
                 _OWN_CACHE = True
@@ -122,7 +130,7 @@ def enable_compilation_cache() -> Path | None:
 
     Returns the cache directory, or ``None`` when disabled or not writable.
     """
-    path = _usable_cache_dir()
+    path = usable_cache_dir()
     if path is None:
         return None
     import jax

@@ -27,6 +27,7 @@ from numpyro.distributions.transforms import biject_to
 from numpyro.infer.util import constrain_fn, log_likelihood, potential_energy, unconstrain_fn
 
 from bayescal._config import computes
+from bayescal.inference.persist import load_json, persisted, save_json, structure_key
 from bayescal.model.assemble import CalibrationModel
 
 __all__ = ["Objective", "Program", "Smooth", "program_for", "program_of", "clear_program_cache"]
@@ -149,23 +150,27 @@ class Program:
 
 
 def program_for(model: CalibrationModel) -> Program:
-    """The cached program of ``model``'s structure (built on first use)."""
-    return program_of(model.model, model.data)
+    """The cached program of ``model``'s structure (built on first use; its traced functions kept on disk,
+    :mod:`bayescal.inference.persist`)."""
+    return program_of(model.model, model.data, structure=repr(model.parts))
 
 
 @computes
-def program_of(model: Callable, example, obs: str = "obs") -> Program:
+def program_of(model: Callable, example, obs: str = "obs", structure: str | None = None) -> Program:
     """The cached program of any numpyro ``model(data)`` whose only argument is a data pytree.
 
     ``model`` must be the same object for every dataset of one structure (build
     it once, e.g. in an ``lru_cache``d factory): it is the cache key, together
     with the data's shapes.  ``obs`` names the observed site (pointwise
-    log-likelihood).
+    log-likelihood).  ``structure``, a complete description of what ``model``
+    computes, lets later processes load its traced functions from disk
+    instead of tracing them again (:func:`~bayescal.inference.persist.persisted`).
     """
     key = (model, obs, _shape_key(example))
     program = _CACHE.get(key)
     if program is None:
-        program = _build(model, example, obs)
+        disk = None if structure is None else structure_key(structure, example, obs)
+        program = _build(model, example, obs, disk)
         _CACHE[key] = program
         if len(_CACHE) > _MAX_PROGRAMS:
             _CACHE.popitem(last=False)
@@ -178,7 +183,7 @@ def _shape_key(data) -> tuple:
     return tuple((np.shape(x), str(jnp.asarray(x).dtype)) for x in jax.tree.leaves(data))
 
 
-def _build(model: Callable, example, obs: str = "obs") -> Program:
+def _build(model: Callable, example, obs: str = "obs", disk: str | None = None) -> Program:
 
     def latent_unconstrained(data):
         tr = handlers.trace(handlers.seed(model, 0)).get_trace(data)
@@ -188,7 +193,7 @@ def _build(model: Callable, example, obs: str = "obs") -> Program:
             if site["type"] == "sample" and not site["is_observed"]
         }
 
-    shapes = jax.eval_shape(latent_unconstrained, example)
+    shapes = _latent_shapes(latent_unconstrained, example, disk)
     z0, unravel = ravel_pytree(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
 
     def potential(z, data):
@@ -210,13 +215,23 @@ def _build(model: Callable, example, obs: str = "obs") -> Program:
         model=model,
         z0=z0,
         unravel=unravel,
-        potential=computes(jax.jit(potential)),
-        value_and_grad=computes(smooth.value_and_grad),
-        hessian=computes(smooth.hessian),
-        constrain=computes(_in_blocks(jax.jit(jax.vmap(constrain_one, in_axes=(0, None))))),
-        unconstrain=computes(jax.jit(unconstrain)),
-        loglik=computes(_in_blocks(jax.jit(jax.vmap(loglik_one, in_axes=(0, None))))),
+        potential=computes(jax.jit(potential)),  # differentiated by the samplers: traced in each process
+        value_and_grad=computes(persisted(smooth.value_and_grad, disk, "value_and_grad")),
+        hessian=computes(persisted(smooth.hessian, disk, "hessian")),
+        constrain=computes(_in_blocks(persisted(jax.vmap(constrain_one, in_axes=(0, None)), disk, "constrain"))),
+        unconstrain=computes(persisted(unconstrain, disk, "unconstrain")),
+        loglik=computes(_in_blocks(persisted(jax.vmap(loglik_one, in_axes=(0, None)), disk, "loglik"))),
     )
+
+
+def _latent_shapes(latent_unconstrained: Callable, example, disk: str | None) -> dict:
+    """Each latent site's unconstrained shape and dtype: from one trace of the model, or kept on disk."""
+    kept = load_json(disk, "latent")
+    if kept is not None:
+        return {k: jax.ShapeDtypeStruct(tuple(shape), np.dtype(dtype)) for k, (shape, dtype) in kept.items()}
+    shapes = jax.eval_shape(latent_unconstrained, example)
+    save_json(disk, "latent", {k: [list(s.shape), str(s.dtype)] for k, s in shapes.items()})
+    return shapes
 
 
 #: rows of a batch of draws evaluated per call: every batch size (one start, 200 refit draws, 4000

@@ -1,0 +1,202 @@
+"""Traced programs kept on disk, so that a new process loads a model structure's functions instead of tracing them.
+
+JAX's persistent compilation cache (:mod:`bayescal._config`) spares a new process the XLA
+compilation of a structure it has met before, but not the tracing that comes first: running the
+model's Python through ``jax.value_and_grad`` and ``jax.jacfwd`` costs about two seconds for a
+camera's model, every process, every structure (a diagnosis fits several).  Here a function's
+traced and lowered program is written once with :mod:`jax.export` and read back by later processes;
+its compilation then comes from the persistent cache.
+
+A program is found by a key that holds everything its trace depends on: the model structure's full
+description (:class:`~bayescal.model.assemble.Parts`), the data's tree and array shapes, the argument's
+shape, the function's name, float64, the JAX backend, and a digest of bayescal's own source with the
+versions of jax, jaxlib and numpyro (any change to them is a new key).  What cannot be keyed exactly is
+not kept: the function is then jitted as usual.  ``BAYESCAL_NO_CACHE`` turns this off with the
+compilation cache.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from collections.abc import Callable
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+__all__ = ["persisted", "programs_dir", "structure_key", "load_json", "save_json"]
+
+#: programs kept on disk; the least recently written beyond this are removed when one is written
+MAX_FILES = 600
+_SUFFIX = ".jaxexport"
+
+
+def programs_dir() -> Path | None:
+    """Where traced programs are kept (beside the compilation cache); None when caching is off or the
+    folder cannot be written."""
+    from bayescal._config import usable_cache_dir
+
+    base = usable_cache_dir()
+    if base is None:
+        return None
+    path = Path(base) / "programs"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return path if os.access(path, os.W_OK) else None
+
+
+@lru_cache(maxsize=1)
+def _source_digest() -> str:
+    """bayescal's source and the versions of what traces it: a program traced by other code is not reused."""
+    import jaxlib
+    import numpyro
+
+    root = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    digest.update(f"{jax.__version__} {jaxlib.__version__} {numpyro.__version__}".encode())
+    return digest.hexdigest()
+
+
+def structure_key(structure: str, example: Any, obs: str) -> str | None:
+    """The key of one structure's programs, or None when ``structure`` is not an exact description (a
+    truncated array in it)."""
+    if "..." in structure:
+        return None
+    leaves, tree = jax.tree.flatten(example)
+    shapes = [(np.shape(x), str(_dtype(x))) for x in leaves]
+    text = f"{_source_digest()}|{structure}|{obs}|{tree}|{shapes}|{jax.default_backend()}"
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _dtype(x: Any) -> np.dtype:
+    dtype = getattr(x, "dtype", None)
+    return np.dtype(dtype) if dtype is not None else np.result_type(x)
+
+
+def _signature(args: tuple) -> tuple:
+    leaves, tree = jax.tree.flatten(args[0])
+    return (str(tree), tuple((np.shape(x), str(_dtype(x))) for x in leaves))
+
+
+def _write_atomic(path: Path, blob: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(blob)
+        os.replace(tmp, path)
+    except OSError:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _prune(folder: Path) -> None:
+    files = sorted(folder.glob(f"*{_SUFFIX}"), key=lambda p: p.stat().st_mtime)
+    for old in files[:-MAX_FILES] if len(files) > MAX_FILES else []:
+        old.unlink(missing_ok=True)
+
+
+def load_json(key: str | None, name: str) -> Any:
+    """A small record kept beside the programs (None when absent or unreadable)."""
+    import json
+
+    folder = programs_dir() if key else None
+    if folder is None:
+        return None
+    try:
+        return json.loads((folder / f"{key}-{name}.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def save_json(key: str | None, name: str, value: Any) -> None:
+    """Keep ``value`` beside the programs of ``key`` (nothing when caching is off)."""
+    import json
+
+    folder = programs_dir() if key else None
+    if folder is not None:
+        _write_atomic(folder / f"{key}-{name}.json", json.dumps(value).encode())
+
+
+def persisted(fn: Callable, key: str | None, name: str) -> Callable:
+    """``jax.jit(fn)``, its program traced once per machine: the first call with an argument of a new shape
+    loads the program kept under ``key`` and ``name`` (or traces, exports and keeps it), and later calls
+    with that shape run it.  Without a key, or for a function :mod:`jax.export` cannot hold, the plain jit.
+
+    ``fn(arg, data)``: the data's structure and shapes are part of ``key``; ``arg``'s shape is part of the
+    program's name.  Called inside a transformation (``vmap``, ``grad``, an enclosing ``jit``), it is the
+    plain jit, traced as usual.
+    """
+    jitted = jax.jit(fn)
+    if key is None:
+        return jitted
+    calls: dict[tuple, Callable] = {}
+
+    def call(*args):
+        if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(args)):
+            return jitted(*args)  # inside a transformation (a vmapped MAP search): traced as usual
+        signature = _signature(args)
+        run = calls.get(signature)
+        if run is None:
+            run = calls[signature] = _resolve(jitted, args, key, name, signature)
+        return run(*args)
+
+    call.__name__ = call.__qualname__ = name
+    return call
+
+
+_REGISTERED: set[type] = set()
+
+
+def _register_namedtuples(tree: Any) -> None:
+    """Let :mod:`jax.export` write the named tuples among ``tree``'s nodes (a model's data)."""
+    from jax import export
+
+    def visit(node: Any) -> None:
+        if isinstance(node, tuple):
+            kind = type(node)
+            if hasattr(kind, "_fields") and kind not in _REGISTERED:
+                export.register_namedtuple_serialization(kind, serialized_name=f"{kind.__module__}.{kind.__qualname__}")
+                _REGISTERED.add(kind)
+            for child in node:
+                visit(child)
+        elif isinstance(node, dict):
+            for child in node.values():
+                visit(child)
+
+    visit(tree)
+
+
+def _resolve(jitted: Any, args: tuple, key: str, name: str, signature: tuple) -> Callable:
+    from jax import export
+
+    folder = programs_dir()
+    if folder is None:
+        return jitted
+    tag = hashlib.sha256(f"{key}|{name}|{signature}|{jax.config.jax_enable_x64}".encode()).hexdigest()
+    path = folder / f"{tag}{_SUFFIX}"
+    exported = None
+    _register_namedtuples(args)
+    try:
+        exported = export.deserialize(bytearray(path.read_bytes()))
+    except FileNotFoundError:
+        pass
+    except Exception:  # a file from another JAX, cut short: traced again and replaced
+        exported = None
+    if exported is None:
+        specs = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), _dtype(x)), args)
+        try:
+            exported = export.export(jitted)(*specs)
+            blob = exported.serialize()
+        except Exception:  # something export cannot hold: the plain jit, as without a cache
+            return jitted
+        _write_atomic(path, bytes(blob))
+        _prune(folder)
+    return jax.jit(exported.call)
