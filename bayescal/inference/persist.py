@@ -30,8 +30,9 @@ import numpy as np
 
 __all__ = ["persisted", "programs_dir", "structure_key", "load_json", "save_json"]
 
-#: programs kept on disk; the least recently written beyond this are removed when one is written
-MAX_FILES = 600
+#: programs and records kept on disk (~35 kB each); the least recently written beyond this are removed
+#: when one is written
+MAX_FILES = 1000
 _SUFFIX = ".jaxexport"
 
 
@@ -98,9 +99,21 @@ def _write_atomic(path: Path, blob: bytes) -> None:
 
 
 def _prune(folder: Path) -> None:
-    files = sorted(folder.glob(f"*{_SUFFIX}"), key=lambda p: p.stat().st_mtime)
-    for old in files[:-MAX_FILES] if len(files) > MAX_FILES else []:
-        old.unlink(missing_ok=True)
+    """Remove the oldest programs and records beyond :data:`MAX_FILES` (a source change keys new ones).
+    Another process may be pruning too: a file gone meanwhile is skipped."""
+
+    def written(path: Path) -> float:
+        try:
+            return path.stat().st_mtime
+        except OSError:
+            return 0.0
+
+    files = sorted((p for p in folder.iterdir() if p.suffix in (_SUFFIX, ".json")), key=written)
+    for old in files[: max(len(files) - MAX_FILES, 0)]:
+        try:
+            old.unlink(missing_ok=True)
+        except OSError:
+            pass
 
 
 def load_json(key: str | None, name: str) -> Any:

@@ -135,3 +135,14 @@ def test_a_calibration_program_is_kept_and_loaded(cache, seed000):
     assert any(cache.glob("*.jaxexport"))
     np.testing.assert_allclose(loaded, traced, rtol=1e-12, atol=1e-12 * np.abs(traced).max())
     assert jax.config.jax_enable_x64 is False
+
+
+def test_the_oldest_are_removed_beyond_the_limit(cache, data, monkeypatch):
+    monkeypatch.setattr(persist, "MAX_FILES", 3)
+    for version in range(3):  # each writes its latent layout and one program
+        program_of(line, data, structure=f"line v{version}").value_and_grad(np.zeros(3), data)
+        clear_program_cache()
+    assert len(list(cache.iterdir())) == 3
+    TRACES.clear()
+    program_of(line, data, structure="line v2").value_and_grad(np.zeros(3), data)
+    assert TRACES == []  # the newest is kept
