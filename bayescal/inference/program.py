@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 from numpyro import handlers
@@ -103,7 +102,7 @@ class Program:
 
     Attributes
     ----------
-    z0 : jax.Array
+    z0 : numpy.ndarray
         Flat unconstrained origin (zeros): every latent at the centre of its
         unconstrained space (unit scales, zero non-centred offsets, linear
         response).  :func:`bayescal.inference.start.initial_point` replaces
@@ -126,7 +125,7 @@ class Program:
     """
 
     model: Callable
-    z0: jax.Array
+    z0: np.ndarray
     unravel: Callable
     potential: Callable
     value_and_grad: Callable
@@ -142,11 +141,12 @@ class Program:
 
     def site_index(self, name: str) -> int | None:
         """Position of a scalar site in the flat vector (None if absent or not scalar)."""
-        sites = self.unravel(self.z0)
-        if name not in sites or jnp.size(sites[name]) != 1:
+        marked = np.zeros(self.dim)
+        sites = self.unravel(marked)
+        if name not in sites or np.size(sites[name]) != 1:
             return None
-        marked = {k: (jnp.ones_like(v) if k == name else jnp.zeros_like(v)) for k, v in sites.items()}
-        return int(jnp.argmax(ravel_pytree(marked)[0]))
+        sites[name][...] = 1.0  # a view of ``marked``
+        return int(np.argmax(marked))
 
 
 def program_for(model: CalibrationModel) -> Program:
@@ -180,7 +180,7 @@ def program_of(model: Callable, example, obs: str = "obs", structure: str | None
 
 
 def _shape_key(data) -> tuple:
-    return tuple((np.shape(x), str(jnp.asarray(x).dtype)) for x in jax.tree.leaves(data))
+    return tuple((np.shape(x), str(getattr(x, "dtype", None) or np.result_type(x))) for x in jax.tree.leaves(data))
 
 
 def _build(model: Callable, example, obs: str = "obs", disk: str | None = None) -> Program:
@@ -194,7 +194,7 @@ def _build(model: Callable, example, obs: str = "obs", disk: str | None = None) 
         }
 
     shapes = _latent_shapes(latent_unconstrained, example, disk)
-    z0, unravel = ravel_pytree(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
+    z0, unravel = _flat_layout(shapes)
 
     def potential(z, data):
         return potential_energy(model, (data,), {}, unravel(z))
@@ -222,6 +222,22 @@ def _build(model: Callable, example, obs: str = "obs", disk: str | None = None) 
         unconstrain=computes(persisted(unconstrain, disk, "unconstrain")),
         loglik=computes(_in_blocks(persisted(jax.vmap(loglik_one, in_axes=(0, None)), disk, "loglik"))),
     )
+
+
+def _flat_layout(shapes: dict) -> tuple[np.ndarray, Callable]:
+    """The flat origin (zeros) and its ``unravel``: each site a slice of the flat vector, the sites in
+    sorted order as :func:`jax.flatten_util.ravel_pytree` lays them out.  ``unravel`` slices and reshapes,
+    so it runs as numpy on a numpy vector (building a program runs no JAX op eagerly: each would
+    compile in every new process) and is traced on a JAX one."""
+    names = sorted(shapes)
+    sizes = [int(np.prod(shapes[k].shape)) for k in names]
+    ends = np.cumsum(sizes, dtype=int)
+    dtype = np.result_type(*(shapes[k].dtype for k in names)) if names else np.float64
+
+    def unravel(z):
+        return {k: z[e - n : e].reshape(shapes[k].shape) for k, n, e in zip(names, sizes, ends.tolist(), strict=True)}
+
+    return np.zeros(int(sum(sizes)), dtype=dtype), unravel
 
 
 def _latent_shapes(latent_unconstrained: Callable, example, disk: str | None) -> dict:

@@ -76,7 +76,7 @@ def _program(model: Callable, p: int) -> Program:
 
     return Program(
         model=model,
-        z0=jnp.zeros(p),
+        z0=np.zeros(p),
         unravel=lambda z: {"beta": z},
         potential=computes(jax.jit(potential)),
         value_and_grad=computes(jax.jit(jax.value_and_grad(potential))),

@@ -50,7 +50,7 @@ def initial_point(model: CalibrationModel, program: Program) -> jnp.ndarray:
     if "rolloff_knee" in values:  # a roll-off far above the data: the linear fit's basin, compressed gently
         values["rolloff_knee"], values["rolloff_sharpness"] = ROLLOFF_START
     values = {k: v for k, v in values.items() if k in init}
-    return program.unconstrain({k: jnp.asarray(v, dtype=float) for k, v in values.items()}, model.data)
+    return program.unconstrain({k: np.asarray(v, dtype=float) for k, v in values.items()}, model.data)
 
 
 def _dark_offsets(d: dict, dark: np.ndarray, c: int, g: int, prop: bool) -> np.ndarray:
