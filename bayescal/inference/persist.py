@@ -9,8 +9,9 @@ its compilation then comes from the persistent cache.
 
 A program is found by a key that holds everything its trace depends on: the model structure's full
 description (:class:`~bayescal.model.assemble.Parts`), the data's tree and array shapes, the argument's
-shape, the function's name, float64, the JAX backend, and a digest of bayescal's own source with the
-versions of jax, jaxlib and numpyro (any change to them is a new key).  What cannot be keyed exactly is
+shape, the function's name, float64, the JAX backend, and a digest of the bayescal source that the trace
+runs (the model, its data and spec, the programs) with the versions of jax, jaxlib and numpyro (any
+change to them is a new key).  What cannot be keyed exactly is
 not kept: the function is then jitted as usual.  ``BAYESCAL_NO_CACHE`` turns this off with the
 compilation cache.
 """
@@ -52,15 +53,29 @@ def programs_dir() -> Path | None:
     return path if os.access(path, os.W_OK) else None
 
 
+#: the parts of bayescal a traced program depends on (the model, its data and spec, the programs
+#: themselves); a change elsewhere (the command line, the reports, the checks after a fit) keeps them
+TRACED_SOURCES = ("model", "inference", "io", "_config.py", "errors.py")
+
+
+def traced_files(root: Path) -> list[Path]:
+    """The Python files of :data:`TRACED_SOURCES` under the package folder ``root``, sorted."""
+    files: list[Path] = []
+    for part in TRACED_SOURCES:
+        files += [root / part] if part.endswith(".py") else list((root / part).rglob("*.py"))
+    return sorted(files)
+
+
 @lru_cache(maxsize=1)
 def _source_digest() -> str:
-    """bayescal's source and the versions of what traces it: a program traced by other code is not reused."""
+    """The source a program's trace runs (:data:`TRACED_SOURCES`) and the versions of what traces it: a
+    program traced by other code is not reused."""
     import jaxlib
     import numpyro
 
     root = Path(__file__).resolve().parents[1]
     digest = hashlib.sha256()
-    for path in sorted(root.rglob("*.py")):
+    for path in traced_files(root):
         digest.update(str(path.relative_to(root)).encode())
         digest.update(path.read_bytes())
     digest.update(f"{jax.__version__} {jaxlib.__version__} {numpyro.__version__}".encode())

@@ -146,3 +146,14 @@ def test_the_oldest_are_removed_beyond_the_limit(cache, data, monkeypatch):
     TRACES.clear()
     program_of(line, data, structure="line v2").value_and_grad(np.zeros(3), data)
     assert TRACES == []  # the newest is kept
+
+
+def test_the_key_follows_the_source_the_trace_runs_and_no_other():
+    """The model, its data and spec, and the programs are in the digest; the command line and the
+    checks after a fit are not (a change there keeps the programs)."""
+    from pathlib import Path
+
+    root = Path(bc.__file__).parent
+    names = {p.relative_to(root).as_posix() for p in persist.traced_files(root)}
+    assert {"model/assemble.py", "model/data.py", "inference/program.py", "model/spec.py", "io/table.py", "_config.py"} <= names
+    assert not {n for n in names if n.startswith(("cli/", "fitting/", "report/", "fleet/"))}
