@@ -155,5 +155,12 @@ def test_the_key_follows_the_source_the_trace_runs_and_no_other():
 
     root = Path(bc.__file__).parent
     names = {p.relative_to(root).as_posix() for p in persist.traced_files(root)}
-    assert {"model/assemble.py", "model/data.py", "inference/program.py", "model/spec.py", "io/table.py", "_config.py"} <= names
+    assert {
+        "model/assemble.py",
+        "model/data.py",
+        "inference/program.py",
+        "model/spec.py",
+        "io/table.py",
+        "_config.py",
+    } <= names
     assert not {n for n in names if n.startswith(("cli/", "fitting/", "report/", "fleet/"))}
