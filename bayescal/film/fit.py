@@ -210,13 +210,14 @@ def fit_film_table(
     )
     timings[backend] = time.perf_counter() - t1
     bands = {}
-    verdict = backends.get(backend).verdict
+    sampler = backends.get(backend)
     for m, draws, mode in zip(models, samples, modes, strict=True):
         chains, n, dim = draws.z.shape
         sites = program.constrain(draws.z.reshape(-1, dim), m.data)
         sites = {k: np.asarray(v).reshape((chains, n) + np.shape(v)[1:]) for k, v in sites.items() if k != "D"}
         judged = {k: sites[k] for k in JUDGED}
-        bands[m.band] = BandFit(m.band, sites, verdict(draws, judged, spec, mode))
+        diag = sampler.verdict(backends.judged(sampler, draws, program, m.data), judged, spec, mode)
+        bands[m.band] = BandFit(m.band, sites, diag)
     result = FilmFit(spec, table, backend, seed, bands, timings)
     if not result.ok:
         fail(strict, f"film fit failed its diagnostics: {result.diagnostics.verdict}")

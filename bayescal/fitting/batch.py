@@ -115,7 +115,8 @@ class FitBatch:
             excess = flat["excess"] * m.layout.dn_scale if "excess" in flat else None
             misfits.append(misfit_of(m, rows, excess)[0])
             sampled = {k: v for k, v in sites.items() if k in SAMPLED}
-            verdicts.append(backend.verdict(self.samples[i], sampled, m.spec, self.modes[i]))
+            draws = backends.judged(backend, self.samples[i], self.program, m.data)
+            verdicts.append(backend.verdict(draws, sampled, m.spec, self.modes[i]))
             for k, v in sampled.items():
                 stacked.setdefault(k, []).append(v)
         return {k: np.stack(v) for k, v in stacked.items()}, worst, misfits, verdicts

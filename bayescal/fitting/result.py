@@ -243,9 +243,8 @@ def finish(model, program, draws, backend: str, seed: int, result, lsq, timings:
     timings = dict(timings)
     t = time.perf_counter()
     post, rows = _posterior(model, program, z, seed)
-    chains, n, dim = np.shape(z)
-    loglik = np.asarray(program.loglik(np.asarray(z).reshape(-1, dim), model.data)).reshape(chains, n, -1)
-    draws = replace(draws, loglik=loglik)
+    draws = backends.with_loglik(draws, program, model.data)  # the DataTree's log_likelihood group, and the verdict's
+    loglik = draws.loglik
     timings["posterior"] = time.perf_counter() - t
     t = time.perf_counter()
     diag = backends.get(backend).verdict(draws, post, spec, result)

@@ -29,7 +29,7 @@ from typing import Any
 import jax
 import numpy as np
 
-__all__ = ["persisted", "programs_dir", "structure_key", "load_json", "save_json"]
+__all__ = ["persisted", "programs_dir", "structure_key", "load_json", "save_json", "dtype_of"]
 
 #: programs and records kept on disk (~35 kB each); the least recently written beyond this are removed
 #: when one is written
@@ -88,22 +88,20 @@ def structure_key(structure: str, example: Any, obs: str) -> str | None:
     if "..." in structure:
         return None
     leaves, tree = jax.tree.flatten(example)
-    shapes = [(np.shape(x), str(_dtype(x))) for x in leaves]
+    shapes = [(np.shape(x), str(dtype_of(x))) for x in leaves]
     text = f"{_source_digest()}|{structure}|{obs}|{tree}|{shapes}|{jax.default_backend()}"
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _dtype(x: Any) -> np.dtype:
+def dtype_of(x: Any) -> np.dtype:
+    """The dtype of an array (numpy or JAX, read without converting it) or of a Python scalar."""
     dtype = getattr(x, "dtype", None)
     return np.dtype(dtype) if dtype is not None else np.result_type(x)
 
 
-def _signature(args: tuple) -> tuple:
-    leaves, tree = jax.tree.flatten(args[0])
-    return (str(tree), tuple((np.shape(x), str(_dtype(x))) for x in leaves))
-
-
 def _write_atomic(path: Path, blob: bytes) -> None:
+    """A cache file written whole or not at all (not :func:`bayescal.io.files.atomic_path`, which keeps
+    the ledger of a user's output folder)."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
     try:
         with os.fdopen(fd, "wb") as handle:
@@ -158,9 +156,9 @@ def persisted(fn: Callable, key: str | None, name: str) -> Callable:
     loads the program kept under ``key`` and ``name`` (or traces, exports and keeps it), and later calls
     with that shape run it.  Without a key, or for a function :mod:`jax.export` cannot hold, the plain jit.
 
-    ``fn(arg, data)``: the data's structure and shapes are part of ``key``; ``arg``'s shape is part of the
-    program's name.  Called inside a transformation (``vmap``, ``grad``, an enclosing ``jit``), it is the
-    plain jit, traced as usual.
+    ``fn(arg, data)``: the data's structure and shapes are part of ``key``; the arguments' shapes and
+    dtypes are part of the program's name.  Called inside a transformation (``vmap``, ``grad``, an
+    enclosing ``jit``), it is the plain jit, traced as usual.
     """
     jitted = jax.jit(fn)
     if key is None:
@@ -168,9 +166,10 @@ def persisted(fn: Callable, key: str | None, name: str) -> Callable:
     calls: dict[tuple, Callable] = {}
 
     def call(*args):
-        if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(args)):
+        leaves, tree = jax.tree.flatten(args)
+        if any(isinstance(x, jax.core.Tracer) for x in leaves):
             return jitted(*args)  # inside a transformation (a vmapped MAP search): traced as usual
-        signature = _signature(args)
+        signature = (tree, tuple((np.shape(x), dtype_of(x)) for x in leaves))
         run = calls.get(signature)
         if run is None:
             run = calls[signature] = _resolve(jitted, args, key, name, signature)
@@ -219,7 +218,7 @@ def _resolve(jitted: Any, args: tuple, key: str, name: str, signature: tuple) ->
     except Exception:  # a file from another JAX, cut short: traced again and replaced
         exported = None
     if exported is None:
-        specs = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), _dtype(x)), args)
+        specs = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), dtype_of(x)), args)
         try:
             exported = export.export(jitted)(*specs)
             blob = exported.serialize()

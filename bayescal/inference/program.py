@@ -26,7 +26,7 @@ from numpyro.distributions.transforms import biject_to
 from numpyro.infer.util import constrain_fn, log_likelihood, potential_energy, unconstrain_fn
 
 from bayescal._config import computes
-from bayescal.inference.persist import load_json, persisted, save_json, structure_key
+from bayescal.inference.persist import dtype_of, load_json, persisted, save_json, structure_key
 from bayescal.model.assemble import CalibrationModel
 
 __all__ = ["Objective", "Program", "Smooth", "program_for", "program_of", "clear_program_cache"]
@@ -180,7 +180,7 @@ def program_of(model: Callable, example, obs: str = "obs", structure: str | None
 
 
 def _shape_key(data) -> tuple:
-    return tuple((np.shape(x), str(getattr(x, "dtype", None) or np.result_type(x))) for x in jax.tree.leaves(data))
+    return tuple((np.shape(x), str(dtype_of(x))) for x in jax.tree.leaves(data))
 
 
 def _build(model: Callable, example, obs: str = "obs", disk: str | None = None) -> Program:

@@ -17,7 +17,7 @@ accepts it by name beside these (:data:`BASELINE`).
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 import numpy as np
@@ -62,6 +62,21 @@ class Draws:
     loglik: np.ndarray | None = None
 
 
+def with_loglik(draws: Draws, program: Program, data) -> Draws:
+    """``draws`` with their pointwise log-likelihood ``(chain, draw, row)``, computed when not there yet."""
+    if draws.loglik is not None:
+        return draws
+    chains, n, dim = np.shape(draws.z)
+    loglik = np.asarray(program.loglik(np.asarray(draws.z).reshape(-1, dim), data)).reshape(chains, n, -1)
+    return replace(draws, loglik=loglik)
+
+
+def judged(backend: Backend, draws: Draws, program: Program, data) -> Draws:
+    """``draws`` as ``backend.verdict`` reads them: with their log-likelihood when its verdict reads it
+    (``backend.reads_loglik``; a batch keeps none, so this one is dropped after the verdict)."""
+    return with_loglik(draws, program, data) if getattr(backend, "reads_loglik", False) else draws
+
+
 class Tuned(Protocol):
     """A spec with sampler settings: a camera's :class:`~bayescal.model.spec.ModelSpec` or a film's."""
 
@@ -92,7 +107,9 @@ class Backend(Protocol):
 
     ``sample_many`` returns one :class:`Draws` per dataset (``progress(datasets_done)``;
     ``iterations(done)`` reports a single dataset's sampler iterations); ``verdict`` judges one
-    dataset's draws (``posterior``: its constrained sites ``(chain, draw, ...)``).
+    dataset's draws (``posterior``: its constrained sites ``(chain, draw, ...)``).  A backend whose
+    verdict reads the draws' pointwise log-likelihood sets ``reads_loglik = True``; callers pass the
+    draws through :func:`judged`.
     """
 
     @property

@@ -138,6 +138,7 @@ class LaplaceBackend(OneByOne):
 
     name: str = "laplace"
     batched: bool = SHIPPED["laplace"].batched
+    reads_loglik: bool = True  # the far-draw check
 
     def sample(
         self, model: Sampled, program: Program, mode: LaplaceResult, seed: int, progress: Progress | None, stage: Stage
@@ -149,9 +150,11 @@ class LaplaceBackend(OneByOne):
     def verdict(
         self, draws: Draws, posterior: Mapping[str, np.ndarray], spec: Tuned, mode: LaplaceResult
     ) -> Diagnostics:
-        extra = dict(draws.extra)
-        if draws.loglik is not None:  # the pointwise log-likelihood the finished fit computed once
-            extra["draws_far_off"] = far_fraction(draws.loglik[0], draws.z.shape[-1])
+        if draws.loglik is None:
+            raise ValueError(
+                "the Laplace verdict reads the draws' pointwise log-likelihood: pass them through judged()"
+            )
+        extra = dict(draws.extra, draws_far_off=far_fraction(draws.loglik[0], draws.z.shape[-1]))
         problems = laplace_problems(mode, extra)
         return Diagnostics(not problems, tuple(problems), extra=extra)
 

@@ -42,3 +42,17 @@ def test_a_rolloff_above_the_readings_is_refused_by_laplace_and_a_linear_camera_
     assert any(
         "far lower than a Gaussian posterior allows" in p and "use nuts" in p for p in rolloff.diagnostics.problems
     )
+
+
+def test_a_batch_refuses_far_draws_as_the_single_fit_does():
+    """``fit_many`` (SBC, coverage runs) judges each dataset's Laplace draws with the same far-draw check:
+    the roll-off bench's draws are refused there too, the linear camera's are not."""
+    frame, _ = simulate_bench(with_held_out(BenchCamera(), exposures=(0.01,)), Departures(), seed=1)
+    table = bc.MeasurementTable.from_frame(frame)
+    spec = bc.load_spec(MODELS / "seed000_bayer.toml")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        plain = bc.fit_many([table], spec, "laplace", seed=0)
+        rolloff = bc.fit_many([table], spec.replace(response={"rolloff": True}), "laplace", seed=0)
+    assert list(plain.diagnostics["sampled"]) == [True]
+    assert list(rolloff.diagnostics["sampled"]) == [False]

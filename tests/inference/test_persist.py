@@ -3,7 +3,6 @@ what the plain jit computes, and survives a damaged file; nothing is kept withou
 
 from typing import NamedTuple
 
-import jax
 import numpy as np
 import numpyro
 import numpyro.distributions as dist
@@ -134,7 +133,6 @@ def test_a_calibration_program_is_kept_and_loaded(cache, seed000):
         loaded = np.asarray(program_for(model).value_and_grad(z, model.data)[1])
     assert any(cache.glob("*.jaxexport"))
     np.testing.assert_allclose(loaded, traced, rtol=1e-12, atol=1e-12 * np.abs(traced).max())
-    assert jax.config.jax_enable_x64 is False
 
 
 def test_the_oldest_are_removed_beyond_the_limit(cache, data, monkeypatch):
