@@ -1,10 +1,11 @@
 """Draw the guides' figures (``docs/figures/``) from the shipped example, as a user would get them.
 
 A Laplace fit of the seed-000 example campaign (``bayescal simulate --design seed000 --seed 1``, as in
-getting started), its report with ``--figures``, the shipped raw frame inverted with it, the
-shipped EMVA 1288 reference CCD characterised, the same campaign fitted with too low an order (the
-misfit a wrong model shows), the film example's report, a simulated fleet's report and the maps of a
-simulated sensor's stacks (each figure taken from the report's page as a user sees it)::
+getting started), its report with ``--figures``, the shipped raw frame inverted with it, the shipped
+EMVA 1288 reference CCD characterised (and its image stacks' non-uniformity), the same campaign fitted
+with too low an order (the misfit a wrong model shows), the film example's report, a simulated fleet's
+report and the maps of a simulated sensor's stacks (each figure taken from the report's page as a user
+sees it)::
 
     python docs/figures.py
 """
@@ -90,6 +91,15 @@ def _maps(cwd: Path) -> None:
     _report_figure(cwd / "maps" / "maps_report.html", "", "maps-report.png")
 
 
+def _nonuniformity(cwd: Path) -> None:
+    """The reference CCD's 50-frame stacks (its 128 x 128 crop in the test data): the datasheet's
+    histograms and spectrograms of the DSNU and PRNU images."""
+    crop = Path(__file__).resolve().parent.parent / "tests/data/emva1288/refset001_ccd_12bit/crop128.npz"
+    _run("characterize", str(crop), "--out", "ccd-stacks", cwd=cwd)
+    _report_figure(cwd / "ccd-stacks" / "datasheet.html", "Non-uniformity histograms", "emva-histograms.png")
+    _report_figure(cwd / "ccd-stacks" / "datasheet.html", "Non-uniformity spectrograms", "emva-spectrograms.png")
+
+
 def main() -> None:
     HERE.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
@@ -108,6 +118,7 @@ def main() -> None:
         shutil.copyfile(cwd / "ccd" / "photon_transfer.png", HERE / "emva-photon-transfer.png")
         _report_figure(cwd / "ccd" / "datasheet.html", "Signal-to-noise ratio", "emva-snr.png")
         _report_figure(cwd / "ccd" / "datasheet.html", "Linearity", "emva-linearity.png")
+        _nonuniformity(cwd)
         _wrong_order(cwd)
         _run("examples", "--copy", "seed003", cwd=cwd)
         _run("fit", "seed003_film_example.csv", "--model", "seed003_film.toml", "--out", "film", "--quiet", cwd=cwd)

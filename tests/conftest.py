@@ -89,6 +89,14 @@ _hypothesis_settings.register_profile("bayescal", derandomize=False, database=No
 _hypothesis_settings.load_profile("bayescal")
 
 
+def least_hits(n: int, level: float = 2e-3) -> int:
+    """Fewest of ``n`` nominal 95 % intervals that must cover: fewer happens with probability below
+    ``level`` (binomial; 30 of 36, 14 of 18)."""
+    from scipy.stats import binom
+
+    return int(binom.ppf(level, n, 0.95))
+
+
 def quiet_fit(table, spec, backend="laplace", seed=0):
     """``bc.fit`` with its failed-fit warning silenced: for tests that read the verdict themselves."""
     import warnings

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from bayescal.characterization.emva1288 import QUANT, Characterization
+from bayescal.characterization.pattern import pattern_images, pattern_sd_draws, spectrogram
 from bayescal.io.files import write_text_atomic
 from bayescal.report.figures import png_base64, subplots
 from bayescal.report.page import escape, image, page, table
@@ -143,6 +144,60 @@ def _dark(res: Characterization) -> str | None:
     return png_base64(fig)
 
 
+#: the pattern images' units and what each is
+PATTERNS = {"DSNU": ("DN", "dark mean image - its mean"), "PRNU": ("%", "(bright - dark) mean image, % of its mean")}
+
+
+def _histograms(res: Characterization) -> str | None:
+    """Each pattern image's histogram (log counts: the tails are the defective pixels) with the 95 % band of
+    the counts a Gaussian pattern of the posterior's DSNU and PRNU would give (EMVA 1288 release 4.0, 8.3)."""
+    images, sds = pattern_images(res.stack), pattern_sd_draws(res.stack, res.draws)
+    if images is None or sds is None:
+        return None
+    fig, axes = subplots(1, 2, figsize=(10.0, 4.0))
+    fig.set_layout_engine("constrained")
+    for ax, (name, pattern) in zip(axes, images.items(), strict=True):
+        values = pattern.ravel()
+        sd = sds[name][:BAND_DRAWS]
+        half = max(float(np.abs(values).max()), 4.0 * float(np.median(sd)))
+        edges = np.linspace(-half, half, 81)
+        counts, _ = np.histogram(values, edges)
+        centres = 0.5 * (edges[1:] + edges[:-1])
+        ax.stairs(np.maximum(counts, 0.5), edges, color="k", label=f"{values.size} pixels")
+        width = edges[1] - edges[0]
+        expected = values.size * width * np.exp(-0.5 * (centres[None, :] / sd[:, None]) ** 2)
+        expected /= np.sqrt(2.0 * np.pi) * sd[:, None]
+        _band(ax, centres, expected, "Gaussian pattern of the posterior")
+        far = int(np.count_nonzero(np.abs(values) > 5.0 * float(np.median(sd))))
+        unit, what = PATTERNS[name]
+        ax.set(yscale="log", ylim=(0.5, None), xlabel=f"{what} ({unit})", ylabel="pixels per bin")
+        ax.set_title(f"{name}: {far} pixel(s) beyond 5 sd", fontsize=10)
+        ax.legend(fontsize=7, loc="upper left")
+    return png_base64(fig)
+
+
+def _spectrograms(res: Characterization) -> str | None:
+    """Horizontal and vertical spectrograms of each pattern image beside the posterior's white level: a
+    peak above the band is a periodic pattern (column or row fixed-pattern noise)."""
+    images, sds = pattern_images(res.stack), pattern_sd_draws(res.stack, res.draws)
+    if images is None or sds is None:
+        return None
+    fig, axes = subplots(2, 2, figsize=(10.0, 7.0))
+    fig.set_layout_engine("constrained")
+    for row, (name, pattern) in zip(axes, images.items(), strict=True):
+        unit, _ = PATTERNS[name]
+        lo, hi = np.quantile(sds[name], [0.025, 0.975])
+        for ax, (axis, direction) in zip(row, ((1, "horizontal"), (0, "vertical")), strict=True):
+            freq, amplitude = spectrogram(pattern, axis)
+            ax.plot(freq, amplitude, color="k", lw=0.9, label="spectrogram")
+            ax.axhspan(lo, hi, color=BAND, alpha=0.25, lw=0, label="white pattern of the posterior: 95 % band")
+            ax.axhline(float(np.median(sds[name])), color=BAND, lw=1.2, label="its posterior median")
+            ax.set(yscale="log", xlabel="frequency (cycles/pixel)", ylabel=f"amplitude ({unit})")
+            ax.set_title(f"{name}, {direction}", fontsize=10)
+            ax.legend(fontsize=8)
+    return png_base64(fig)
+
+
 def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
     """Write the datasheet page ``out`` (HTML, figures embedded; written atomically)."""
     out = Path(out)
@@ -156,9 +211,13 @@ def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
         ("Signal-to-noise ratio", _snr(res)),
         ("Linearity", _linearity(res)),
     ]
-    dark = _dark(res)
-    if dark is not None:
-        figures.append(("Dark signal", dark))
+    for title, png in (
+        ("Dark signal", _dark(res)),
+        ("Non-uniformity histograms", _histograms(res)),
+        ("Non-uniformity spectrograms", _spectrograms(res)),
+    ):
+        if png is not None:
+            figures.append((title, png))
     body = [
         "<h1>EMVA 1288 datasheet</h1>",
         f"<p>{escape(res.source)}: the standard's point estimates beside the posterior median and its 95 % "

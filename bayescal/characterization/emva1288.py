@@ -79,6 +79,8 @@ class Characterization:
     curve_draws: dict = field(default_factory=dict)
     #: the dark frames at several exposures (``texp_s``, ``mean_dn``, ``var_dn2``); None: one exposure only
     dark: pd.DataFrame | None = None
+    #: the set's stack statistics and mean images (:attr:`bayescal.io.emva.Steps.stack`; empty: pairs only)
+    stack: dict = field(default_factory=dict)
 
     @property
     def problems(self) -> list[str]:
@@ -237,6 +239,27 @@ def _spatial(stack: dict) -> tuple[float, float]:
     bright = stack["spatial_var_bright"] - stack["temporal_var_bright"] / n
     dark = stack["spatial_var_dark"] - stack["temporal_var_dark"] / n
     return bright, dark
+
+
+def _spatial_draws(stack: dict, n_pix: float, n_draws: int, rng: np.random.Generator) -> tuple:
+    """Posterior draws of the bright and dark spatial variances (eq. 32): the mean image's variance and the
+    temporal variance each drawn from its own scaled inverse chi-square (``N - 1`` and ``N (L - 1)`` degrees
+    of freedom, Jeffreys), then the residual temporal noise subtracted draw by draw.
+
+    Scaling the corrected variance alone ignored the temporal term's own error: where the pattern is small
+    beside ``s2_temporal / L`` (the reference CCD's dark stack: 6e-5 of 0.19 DN^2), that interval was
+    several times too narrow."""
+    n = float(stack["n_images"])
+
+    def variance(value: float, dof: float) -> np.ndarray:
+        return dof * value / rng.chisquare(dof, n_draws)
+
+    out = []
+    for kind in ("bright", "dark"):
+        mean_image = variance(stack[f"spatial_var_{kind}"], n_pix - 1)
+        temporal = variance(stack[f"temporal_var_{kind}"], n_pix * (n - 1))
+        out.append(mean_image - temporal / n)
+    return tuple(out)
 
 
 def _nonuniformity(st: dict, k, s2_bright, s2_dark) -> dict:
@@ -427,10 +450,7 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
     le_min, le_max = _linearity_at_extremes(c, r, point, lin[:, 0], lin[:, 1])
     draws = _quantities(k, resp, s2_dark, i_mean, i_var, point["u_p_sat"], le_min, le_max)
     if steps.stack:
-        # a spatial variance over N pixels has N - 1 degrees of freedom (Jeffreys posterior)
-        s2_bright, s2_dark_sp = _spatial(steps.stack)
-        scale = lambda v: (n_pix - 1) * max(v, 0.0) / rng.chisquare(n_pix - 1, n_draws)  # noqa: E731
-        draws.update(_nonuniformity(steps.stack, k, scale(s2_bright), scale(s2_dark_sp)))
+        draws.update(_nonuniformity(steps.stack, k, *_spatial_draws(steps.stack, n_pix, n_draws, rng)))
     determined = _dark_exposures(steps) >= 2
     if determined:
         lo, hi = np.quantile(draws["dark_current_difference"], [0.025, 0.975])
@@ -472,7 +492,9 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
         )
     curves = c.assign(signal=sig, var_signal=dvar)
     dark = steps.dark.reset_index(drop=True) if determined else None
-    return Characterization(pd.DataFrame(rows), point, draws, curves, r, compatible, steps.source, curve_draws, dark)
+    return Characterization(
+        pd.DataFrame(rows), point, draws, curves, r, compatible, steps.source, curve_draws, dark, steps.stack
+    )
 
 
 def _undetermined(name: str) -> str:

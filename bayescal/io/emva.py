@@ -50,7 +50,8 @@ class Steps:
     stack : dict
         Spatial variances of the averaged bright/dark stacks when present:
         ``spatial_var_bright``, ``spatial_var_dark``, ``temporal_var_bright``,
-        ``temporal_var_dark``, ``mean_bright``, ``mean_dark``, ``n_images``, ``photons``.
+        ``temporal_var_dark``, ``mean_bright``, ``mean_dark``, ``n_images``, ``photons``, and where the
+        stacks were read as images, their mean images ``image_bright`` and ``image_dark`` (DN, 2-D).
     """
 
     bright: pd.DataFrame
@@ -81,9 +82,12 @@ def reduce_stack(frames, progress: Callable[[int], None] | None = None) -> dict:
 
     ``frames`` is any iterable of 2-D arrays (read lazily from disk, or an
     array).  Returns the mean of the mean image, the spatial variance of the
-    mean image corrected for the residual temporal noise (EMVA 1288 eq. 32:
-    ``s2_spatial = var(mean image) - s2_temporal / L``), and the temporal
-    variance.
+    mean image as it is (``spatial_var``, as a reduced table's
+    ``spatial_var_of_mean_image_DN2``: the characterisation corrects it once
+    for the residual temporal noise, EMVA 1288 eq. 32, ``var(mean image) -
+    s2_temporal / L``), the temporal variance, and the mean image itself
+    (``mean_image``: the non-uniformity's histograms and spectrograms, EMVA
+    1288 release 4.0 section 8).
     """
     n, mean, m2 = 0, np.zeros(0), np.zeros(0)
     for frame in frames:
@@ -99,8 +103,14 @@ def reduce_stack(frames, progress: Callable[[int], None] | None = None) -> dict:
     if n < 2:
         raise TableError("a stack needs at least 2 images")
     temporal = float(np.mean(m2 / (n - 1)))
-    spatial = float(np.var(mean, ddof=1) - temporal / n)
-    return {"mean_dn": float(mean.mean()), "spatial_var": spatial, "temporal_var": temporal, "n_images": n}
+    spatial = float(np.var(mean, ddof=1))
+    return {
+        "mean_dn": float(mean.mean()),
+        "spatial_var": spatial,
+        "temporal_var": temporal,
+        "n_images": n,
+        "mean_image": mean,
+    }
 
 
 @dataclass(frozen=True)
@@ -417,7 +427,7 @@ def steps_of(rows: list[dict], stacks: dict, bits: int, source: str) -> Steps:
         )
     bright = df[df.kind == "bright"].drop(columns="kind").sort_values("texp_s").reset_index(drop=True)
     dark = df[df.kind == "dark"].drop(columns="kind").sort_values("texp_s").reset_index(drop=True)
-    stack = {}
+    stack: dict = {}
     if "bright" in stacks and "dark" in stacks:
         gb, sb = stacks["bright"]
         _, sd = stacks["dark"]
@@ -431,4 +441,6 @@ def steps_of(rows: list[dict], stacks: dict, bits: int, source: str) -> Steps:
             "n_images": sb["n_images"],
             "photons": gb["photons"],
         }
+        if "mean_image" in sb and "mean_image" in sd:  # reduced from images (a table of statistics has none)
+            stack |= {"image_bright": sb["mean_image"], "image_dark": sd["mean_image"]}
     return Steps(bright, dark, bits, source, stack)

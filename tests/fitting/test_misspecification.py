@@ -12,7 +12,7 @@ import pytest
 
 import bayescal as bc
 from bayescal.validation import BenchCamera, Departures, simulate_bench, with_held_out
-from tests.conftest import MODELS
+from tests.conftest import MODELS, least_hits
 
 
 @pytest.fixture(scope="module")
@@ -23,14 +23,6 @@ def spec():
 #: datasets per coverage test: a few in the default run, the full count in the slow suite (same seeds, so
 #: the default run checks the first datasets of the slow one against their own binomial bound)
 DATASETS = [3, pytest.param(6, marks=pytest.mark.slow)]
-
-
-def least_hits(n: int, level: float = 2e-3) -> int:
-    """Fewest of ``n`` nominal 95 % intervals that must cover: fewer happens with probability below
-    ``level`` (binomial; 30 of 36, 14 of 18)."""
-    from scipy.stats import binom
-
-    return int(binom.ppf(level, n, 0.95))
 
 
 def _fit(spec, frame, seed):

@@ -1,0 +1,66 @@
+"""The built wheel installs into a clean environment and works there (issue: adoptable as a library).
+
+Slow suite: it builds the wheel, creates a new virtual environment from the interpreter that runs the
+tests (none of the test environment's packages visible), installs the wheel with the core dependencies
+only (from the package index, pinned by ``.ci/constraints.txt``), and runs ``bayescal demo`` and ``python -m
+bayescal --help`` from a folder outside the repository.
+"""
+
+import json
+import subprocess
+import sys
+import venv
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import ROOT
+
+pytestmark = pytest.mark.slow
+
+
+def _run(cmd: list, cwd: Path, timeout: float = 900) -> subprocess.CompletedProcess:
+    done = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    assert done.returncode == 0, f"{cmd}: exit {done.returncode}\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
+    return done
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("dist")
+    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out), str(ROOT)], cwd=out)
+    (found,) = out.glob("bayescal-*.whl")
+    return found
+
+
+def test_the_wheel_carries_the_licences_and_the_examples(wheel):
+    names = zipfile.ZipFile(wheel).namelist()
+    licences = [n for n in names if ".dist-info/licenses/" in n]
+    assert any(n.endswith("/LICENSE") for n in licences), licences
+    # the notice of the CC BY-SA reference data shipped among the examples
+    assert any(n.endswith("models/README.md") for n in licences), licences
+    assert "bayescal/models/seed000_bayer.toml" in names and "bayescal/models/emva_refset001_steps.csv" in names
+    assert "bayescal/__main__.py" in names
+    # nothing of the repository's tests or benchmarks
+    assert not [n for n in names if n.startswith(("tests/", "benchmarks/"))]
+
+
+def test_the_wheel_runs_the_demo_in_a_clean_environment(wheel, tmp_path):
+    env_dir = tmp_path / "env"
+    venv.EnvBuilder(with_pip=True, clear=True).create(env_dir)
+    py = env_dir / "bin" / "python"
+    _run([str(py), "-m", "pip", "install", "-q", "-c", str(ROOT / ".ci" / "constraints.txt"), str(wheel)], tmp_path)
+    # the core only: none of the extras came with it
+    extras = ("dask", "zarr", "emcee", "blackjax", "astropy")
+    probe = f"import importlib.util as u; print([m for m in {extras!r} if u.find_spec(m)])"
+    assert _run([str(py), "-c", probe], tmp_path).stdout.strip() == "[]"
+
+    elsewhere = tmp_path / "lab"
+    elsewhere.mkdir()
+    helped = _run([str(py), "-m", "bayescal", "--help"], elsewhere)
+    assert "fit a calibration model to a measurement table" in helped.stdout
+    _run([str(env_dir / "bin" / "bayescal"), "demo", "--out", "demo", "--quiet"], elsewhere)
+    summary = json.loads((elsewhere / "demo" / "summary.json").read_text())
+    assert summary["status"] == "ok", summary["status"]
+    assert (elsewhere / "demo" / "report.html").stat().st_size > 10_000
