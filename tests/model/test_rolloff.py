@@ -42,3 +42,22 @@ def test_an_exponential_saturation_is_drawn_by_the_monotone_shape():
     assert inv.lower[0] < row.radiance < inv.upper[0], (inv.lower[0], row.radiance, inv.upper[0])
     linear = bc.invert(dataclasses.replace(cal, rolloff=None), [float(row.dn_mean)], "G", setting)
     assert linear.median[0] < inv.median[0]  # undoing the compression raises the radiance
+
+
+def test_the_monotone_integral_matches_adaptive_quadrature():
+    """The Gauss-Legendre integral of the monotone shape against scipy's adaptive quadrature, for weights
+    drawn at twice the prior's sd over 0 to 1.2 of full scale: within 1e-6 of full scale (4e-3 DN at 12
+    bits; measured 2.4e-7)."""
+    from scipy.integrate import quad
+
+    from bayescal.model.components import rolloff
+
+    rng = np.random.default_rng(7)
+    weights = rng.normal(0.0, 2 * rolloff.WEIGHT_SD, (20, rolloff.n_params("monotone") - 1))
+    u = np.linspace(0.02, 1.2, 15)
+    params = np.concatenate([np.ones((20, 1)), weights], axis=1)  # scale 1: the signal in full scales
+    got = rolloff.compress(u[None, :], "monotone", params[:, None, :])
+    for w, row in zip(weights, got, strict=True):
+        slope = lambda x, w=w: float(np.exp(-rolloff.log_slope(np.asarray(x), w)))  # noqa: E731
+        want = [quad(slope, 0.0, v, epsabs=1e-13, epsrel=1e-13, limit=200)[0] for v in u]
+        np.testing.assert_allclose(row, want, rtol=0, atol=1e-6)
