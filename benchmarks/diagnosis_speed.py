@@ -7,7 +7,10 @@ programs and the compilation cache off (``BAYESCAL_NO_CACHE=1``: every structure
 the process, as on the first dataset of a new protocol). Per dataset: seconds, verdict, what was adopted,
 the doubt named, and how many of the six A0/A1 intervals cover the truth: the two trees must agree.
 
-    python benchmarks/diagnosis_speed.py --baseline COMMIT [--seeds 0 2 12 24 28 29] [--cold] [--out STEM]
+    python benchmarks/diagnosis_speed.py --baseline COMMIT [--seeds 0 2 12 24 28 29] [--cold] [--passes 2]
+
+``--passes 2`` runs each tree's process twice and keeps the second: the programs of every structure the
+diagnosis meets are then kept on disk (a later dataset of the same protocol).
 
 Writes ``benchmarks/results/diagnosis_speed.{csv,md}`` (``diagnosis_speed_cold`` for the cold run).
 """
@@ -64,7 +67,7 @@ def summary(df: pd.DataFrame, baseline: str, cold: bool) -> str:
         "# What the diagnosis costs (independent simulator's departures, seed-000 spec, Laplace)",
         "",
         f"Baseline `{baseline}` against the current tree, each in its own process over the same seeds, "
-        + ("cold: no kept programs, no compilation cache." if cold else "with the kept programs and caches."),
+        + ("cold: no kept programs, no compilation cache." if cold else "the second of two passes (programs kept)."),
         "",
         "| seed | departures | baseline (s) | now (s) | ratio | same verdict, adoption, doubt, coverage |",
         "|---|---|---|---|---|---|",
@@ -90,6 +93,7 @@ def main() -> None:
     ap.add_argument("--baseline", required=True, help="the commit to compare with")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 2, 12, 24, 28, 29])
     ap.add_argument("--cold", action="store_true", help="no kept programs, no compilation cache")
+    ap.add_argument("--passes", type=int, default=1, help="passes per tree, the last one kept (2: warm caches)")
     ap.add_argument("--out", default=None, help="results stem (default diagnosis_speed, _cold with --cold)")
     args = ap.parse_args()
     args.out = args.out or str(RESULTS / ("diagnosis_speed_cold" if args.cold else "diagnosis_speed"))
@@ -99,8 +103,11 @@ def main() -> None:
             ["git", "-C", str(ROOT), "worktree", "add", "-q", "--detach", str(base), args.baseline], check=True
         )
         try:
-            rows = [dict(r, tree="baseline") for r in run_tree(base, args.seeds, args.cold)]
-            rows += [dict(r, tree="now") for r in run_tree(ROOT, args.seeds, args.cold)]
+            rows = []
+            for name, tree in (("baseline", base), ("now", ROOT)):
+                for _ in range(args.passes):
+                    kept = run_tree(tree, args.seeds, args.cold)
+                rows += [dict(r, tree=name) for r in kept]
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(base)], check=False)
     df = pd.DataFrame(rows)
