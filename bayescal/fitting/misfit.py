@@ -20,6 +20,14 @@ fit is checked for
 - **runs along the measurement order** (``time_s``, else the row order):
   a dark level or responsivity that drifted during the run.
 
+When a check fires, the groups one channel makes with one setting (its gain,
+exposure, TDI or sphere level rows) say where the misfit sits, if one of them
+stands out from the channel's and the setting's rows as a whole: a departure
+at one setting in one channel, which no term draws and the marginal groups
+dilute (a channel's readings 3 % high at one exposure: z = +6.4 there, +1.1
+for the exposure's rows, +0.3 for the channel's).  They never fail a fit on
+their own: there are many of them, and they add a place, not a finding.
+
 Each check that fires adds a problem naming the rows and a remedy; the fit is
 then reported failed (exit 3, the report's banner).  The numbers behind the
 checks are kept in the diagnostics (``misfit``) and drawn in the report.
@@ -32,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-__all__ = ["MisfitThresholds", "misfit_checks", "group_residuals"]
+__all__ = ["MisfitThresholds", "misfit_checks", "group_residuals", "crossed_residuals"]
 
 
 @dataclass(frozen=True)
@@ -90,6 +98,51 @@ def group_residuals(frame: pd.DataFrame, resid_z: np.ndarray, rel_dev: np.ndarra
                 }
             )
     return pd.DataFrame(rows, columns=["column", "value", "n", "z", "rel_dev"])
+
+
+#: the settings whose groups are also read within each channel (:func:`crossed_residuals`)
+_CROSSED = ("gain", "exposure_s", "tdi_stages", "level")
+#: a crossed group is named when its |z| exceeds the threshold and this many times its marginal groups' |z|
+_CROSSED_OVER_MARGINS = 1.5
+
+
+def crossed_residuals(frame: pd.DataFrame, resid_z: np.ndarray, rel_dev: np.ndarray, lit: np.ndarray) -> pd.DataFrame:
+    """:func:`group_residuals` of the groups one channel makes with one setting (``channel`` x ``gain``,
+    ``exposure_s``, ``tdi_stages`` or ``level``), each with its rows' name (``name``): where a departure
+    sits that touches one channel at one setting, which the marginal groups dilute."""
+    columns = ["name", "channel", "column", "value", "n", "z", "rel_dev"]
+    if "channel" not in frame:
+        return pd.DataFrame(columns=columns)
+    channel = frame["channel"].astype(str).to_numpy()
+    parts = []
+    for ch in pd.unique(channel[lit]):
+        m = channel == ch
+        sub = frame.loc[m, [c for c in _CROSSED if c in frame]]
+        one = group_residuals(sub, resid_z[m], rel_dev[m], lit[m])
+        one.insert(0, "channel", ch)
+        names = [_GROUPS[c].format(v=v) for c, v in zip(one["column"], one["value"], strict=True)]
+        one.insert(0, "name", [f"channel {ch}, {name}" for name in names])
+        parts.append(one)
+    return pd.concat(parts, ignore_index=True)[columns] if parts else pd.DataFrame(columns=columns)
+
+
+def _located(crossed: pd.DataFrame, groups: pd.DataFrame, threshold: float) -> list[str]:
+    """Where a misfit sits, when a fit fails: the crossed groups (one channel at one setting) whose |z| exceeds
+    ``threshold`` and :data:`_CROSSED_OVER_MARGINS` times that of the channel's and the setting's own groups."""
+    margin = {(r.column, str(r.value)): abs(r.z) for r in groups.itertuples()}
+    out: list[str] = []
+    for r in crossed.sort_values("z", key=np.abs, ascending=False).itertuples():
+        if abs(r.z) <= threshold or len(out) == 2:
+            break
+        marginal = max(margin.get(("channel", str(r.channel)), 0.0), margin.get((r.column, str(r.value)), 0.0))
+        if abs(r.z) > _CROSSED_OVER_MARGINS * marginal:
+            side = "above" if r.z > 0 else "below"
+            out.append(
+                f"where it sits: {r.name} read {abs(r.rel_dev):.2%} {side} the model (n = {r.n}, z = {r.z:+.1f}), "
+                "more than the channel's or the setting's rows as a whole: something at that setting differs in "
+                "that channel alone, which no term of the model draws"
+            )
+    return out
 
 
 def runs_z(resid: np.ndarray) -> float:
@@ -164,6 +217,10 @@ def misfit_checks(
                 )
     info["runs_z"] = runs
     info.update(_drift_check(frame, z, usable, thresholds, problems, resid, signal_dn, terms_on))
+    crossed = crossed_residuals(frame, z, rel, lit)
+    info["crossed_groups"] = crossed.drop(columns="name").to_dict("records")
+    if problems:  # a fit that fails anyway: say where its misfit sits (never a reason to fail on its own)
+        problems += _located(crossed, groups, thresholds.group_z)
     return problems, info
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import bayescal as bc
-from bayescal.fitting.misfit import group_residuals, runs_z
+from bayescal.fitting.misfit import crossed_residuals, group_residuals, runs_z
 from bayescal.model.components.settings import SettingFactors
 from bayescal.model.spec import SettingsSpec
 
@@ -129,3 +129,65 @@ def test_fit_many_applies_the_misfit_checks_like_fit(seed000, off_table):
         batch = bc.fit_many([off_table], exact, "laplace", seeds=[3])
     assert not single.ok and not batch.ok.any()
     assert "gain 2 rows sit" in batch.diagnostics["misfit"].iloc[0]
+
+
+def _grid_frame():
+    """Three channels x four exposures x five levels, every row lit."""
+    import pandas as pd
+
+    rows = [(c, e, lv) for c in "RGB" for e in (0.004, 0.008, 0.01, 0.02) for lv in range(5)]
+    return pd.DataFrame(rows, columns=["channel", "exposure_s", "level"]).assign(stimulus=1.0)
+
+
+def test_crossed_groups_in_closed_form():
+    frame = _grid_frame()
+    z = np.zeros(len(frame))
+    cell = (frame.channel == "G").to_numpy() & (frame.exposure_s == 0.01).to_numpy()
+    z[cell] = 3.0  # five rows at +3 sd: the group's sum / sqrt(n) is 3 sqrt(5)
+    rel = np.where(cell, 0.02, 0.0)
+    crossed = crossed_residuals(frame, z, rel, np.ones(len(frame), bool))
+    g = crossed[(crossed.channel == "G") & (crossed.column == "exposure_s") & (crossed.value == 0.01)].iloc[0]
+    assert g.n == 5 and g.z == pytest.approx(3 * np.sqrt(5)) and g.rel_dev == pytest.approx(0.02)
+    assert g["name"] == "channel G, exposure 0.01 s rows"
+    # 3 channels x (4 exposures + 5 levels) groups, none from a column the frame lacks
+    assert len(crossed) == 27 and set(crossed.column) == {"exposure_s", "level"}
+
+
+def _checks(frame, z, excess_ratio):
+    from bayescal.fitting.misfit import misfit_checks
+
+    n = len(frame)
+    ones = np.ones(n)
+    excess = np.full(n, excess_ratio * 0.1)
+    return misfit_checks(frame, z, np.zeros(n), ones, 100 * ones, 0.1 * ones, excess, np.zeros(n, bool))
+
+
+def test_a_failing_fit_says_which_channel_at_which_setting_and_a_passing_one_is_not_failed_by_it():
+    frame = _grid_frame()
+    z = 0.05 * (-1.0) ** np.arange(len(frame))  # signs alternating: no runs along the signal or the order
+    cell = (frame.channel == "G").to_numpy() & (frame.exposure_s == 0.01).to_numpy()
+    z[cell] = 1.9  # the cell: z = 4.2; the exposure's rows 2.5, the channel's 2.1: neither fires alone
+    problems, info = _checks(frame, z, excess_ratio=50.0)  # failed anyway: its scatter is inflated
+    assert problems[0].startswith("the fitted excess scatter")
+    assert len(problems) == 2 and problems[1].startswith("where it sits: channel G, exposure 0.01 s rows read")
+    assert len(info["crossed_groups"]) == 27
+    passing, _ = _checks(frame, z, excess_ratio=1.0)
+    assert passing == []  # a crossed group alone never fails a fit
+    z[(frame.exposure_s == 0.01).to_numpy()] = 1.9  # the whole exposure: its own group says it, not a channel
+    problems, _ = _checks(frame, z, excess_ratio=50.0)
+    assert not any(p.startswith("where it sits") for p in problems), problems
+
+
+def test_a_channels_error_at_one_exposure_is_located_when_the_fit_fails(seed000):
+    """The seed-000 campaign with G's readings at the 10 ms exposure 3 % high (no term draws a channel's error
+    at one exposure): the fit fails for its inflated scatter and names that channel at that exposure."""
+    spec, design = seed000
+    df = bc.simulate(spec, design, seed=5).table.to_frame()
+    cell = (df.channel == "G") & (df.exposure_s == 0.01) & (df.radiance > 0)
+    df.loc[cell, "dn_mean"] *= 1.03
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = bc.fit(bc.MeasurementTable.from_frame(df), spec, "laplace", seed=0)
+    assert not result.ok
+    located = [p for p in result.diagnostics.problems if p.startswith("where it sits")]
+    assert located and located[0].startswith("where it sits: channel G, exposure 0.01 s rows read"), located
