@@ -148,14 +148,23 @@ def _dark(res: Characterization) -> str | None:
 PATTERNS = {"DSNU": ("DN", "dark mean image - its mean"), "PRNU": ("%", "(bright - dark) mean image, % of its mean")}
 
 
-def _histograms(res: Characterization) -> str | None:
-    """Each pattern image's histogram (log counts: the tails are the defective pixels) with the 95 % band of
-    the counts a Gaussian pattern of the posterior's DSNU and PRNU would give (EMVA 1288 release 4.0, 8.3)."""
+def _pattern_figure(res: Characterization, rows: int, cols: int, size: tuple[float, float]):
+    """The set's pattern images, their posterior sds and a figure for them; None without image stacks."""
     images, sds = pattern_images(res.stack), pattern_sd_draws(res.stack, res.draws)
     if images is None or sds is None:
         return None
-    fig, axes = subplots(1, 2, figsize=(10.0, 4.0))
+    fig, axes = subplots(rows, cols, figsize=size)
     fig.set_layout_engine("constrained")
+    return images, sds, fig, axes
+
+
+def _histograms(res: Characterization) -> str | None:
+    """Each pattern image's histogram (log counts: the tails are the defective pixels) with the 95 % band of
+    the counts a Gaussian pattern of the posterior's DSNU and PRNU would give (EMVA 1288 release 4.0, 8.3)."""
+    found = _pattern_figure(res, 1, 2, (10.0, 4.0))
+    if found is None:
+        return None
+    images, sds, fig, axes = found
     for ax, (name, pattern) in zip(axes, images.items(), strict=True):
         values = pattern.ravel()
         sd = sds[name][:BAND_DRAWS]
@@ -179,11 +188,10 @@ def _histograms(res: Characterization) -> str | None:
 def _spectrograms(res: Characterization) -> str | None:
     """Horizontal and vertical spectrograms of each pattern image beside the posterior's white level: a
     peak above the band is a periodic pattern (column or row fixed-pattern noise)."""
-    images, sds = pattern_images(res.stack), pattern_sd_draws(res.stack, res.draws)
-    if images is None or sds is None:
+    found = _pattern_figure(res, 2, 2, (10.0, 7.0))
+    if found is None:
         return None
-    fig, axes = subplots(2, 2, figsize=(10.0, 7.0))
-    fig.set_layout_engine("constrained")
+    images, sds, fig, axes = found
     for row, (name, pattern) in zip(axes, images.items(), strict=True):
         unit, _ = PATTERNS[name]
         lo, hi = np.quantile(sds[name], [0.025, 0.975])
