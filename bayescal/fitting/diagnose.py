@@ -32,7 +32,7 @@ import pandas as pd
 
 from bayescal.errors import FitFailedWarning
 from bayescal.fitting.fit import fit
-from bayescal.fitting.modegain import SCREEN_SE, mode_fit, paired_gain
+from bayescal.fitting.modegain import SCREEN_SE, mode_fits, paired_gain
 from bayescal.fitting.result import Fit
 from bayescal.io.table import MeasurementTable
 from bayescal.model.components import EFFECTS
@@ -361,12 +361,16 @@ def diagnose(
         """Fit every offered (spec, changes), rank it against the model so far; the best when the data tell it.
         A candidate whose in-sample gain at its mode cannot reach the evidence is screened out unfitted."""
         rows, fits = [], {}
-        at_mode = mode_fit(table, laplace_proxy(current_spec)) if by_mode else None
+        searched = {
+            name: laplace_proxy(trial).replace(inference={"holdout_check": False})
+            for name, (trial, _) in offers.items()
+        }
+        modes = mode_fits(table, {"": laplace_proxy(current_spec)} | searched) if by_mode else {}
+        at_mode = modes.get("")
         for name, (trial, changes) in offers.items():
-            searched = laplace_proxy(trial).replace(inference={"holdout_check": False})
             screen = {"mode_gain": np.nan, "mode_dse": np.nan, "screened": False}
             if at_mode is not None:
-                own = mode_fit(table, searched)
+                own = modes[name]
                 gain, se = paired_gain(at_mode.loglik, own.loglik)
                 screen |= {"mode_gain": gain, "mode_dse": se}
                 if own.converged and at_mode.converged and gain <= SCREEN_SE * se:
@@ -376,7 +380,7 @@ def diagnose(
                         | {"screened": True}
                     )
                     continue
-            result = _quiet_fit(table, searched, "laplace", seed)
+            result = _quiet_fit(table, searched[name], "laplace", seed)
             if _level_trend(result) >= LAMP_TREND:  # the "lamp errors" follow the signal: a shape, not a lamp
                 continue
             loo = _loo(result)

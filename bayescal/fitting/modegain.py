@@ -16,6 +16,8 @@ on the independent bench's departures.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
@@ -28,7 +30,7 @@ from bayescal.io.table import MeasurementTable
 from bayescal.model.assemble import build_model
 from bayescal.model.spec import ModelSpec
 
-__all__ = ["ModeFit", "mode_fit", "paired_gain", "SCREEN_SE"]
+__all__ = ["ModeFit", "mode_fit", "mode_fits", "paired_gain", "SCREEN_SE"]
 
 #: a candidate whose in-sample gain at its mode is at most this many standard errors of the paired
 #: differences is screened out (adoption needs 2 of elpd_loo's, which the in-sample gain bounds from above)
@@ -51,6 +53,18 @@ def mode_fit(table: MeasurementTable, spec: ModelSpec) -> ModeFit:
     found = laplace(program, model.data, initial_point(model, program), polish=False)
     loglik = np.asarray(program.loglik(np.asarray(found.mode)[None], model.data))[0]
     return ModeFit(loglik, bool(found.converged and found.positive_definite and np.isfinite(loglik).all()))
+
+
+@computes
+def mode_fits(table: MeasurementTable, specs: dict[str, ModelSpec], workers: int | None = None) -> dict[str, ModeFit]:
+    """:func:`mode_fit` of each spec, ``workers`` at a time in threads (default: the CPUs, at most 4): a new
+    structure's programs are mostly loaded and run outside the interpreter, so two cores load two at once."""
+    workers = workers or min(4, os.cpu_count() or 1)
+    if workers <= 1 or len(specs) <= 1:
+        return {name: mode_fit(table, spec) for name, spec in specs.items()}
+    with ThreadPoolExecutor(workers) as pool:
+        done = {name: pool.submit(mode_fit, table, spec) for name, spec in specs.items()}
+        return {name: future.result() for name, future in done.items()}
 
 
 def paired_gain(current: np.ndarray, candidate: np.ndarray) -> tuple[float, float]:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
+import threading
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
@@ -180,6 +181,11 @@ def persisted(fn: Callable, key: str | None, name: str) -> Callable:
 
 
 _REGISTERED: set[type] = set()
+#: held while a model's Python runs under a trace (numpyro's effect handlers are one stack per process, so
+#: two threads may not trace models at once; :mod:`bayescal.inference.program`) and while a named tuple is
+#: registered; loading and running a kept program does not need it (the diagnosis loads its candidates'
+#: programs from several threads)
+TRACING = threading.RLock()
 
 
 def _register_namedtuples(tree: Any) -> None:
@@ -190,8 +196,11 @@ def _register_namedtuples(tree: Any) -> None:
         if isinstance(node, tuple):
             kind = type(node)
             if hasattr(kind, "_fields") and kind not in _REGISTERED:
-                export.register_namedtuple_serialization(kind, serialized_name=f"{kind.__module__}.{kind.__qualname__}")
-                _REGISTERED.add(kind)
+                with TRACING:
+                    if kind not in _REGISTERED:
+                        name = f"{kind.__module__}.{kind.__qualname__}"
+                        export.register_namedtuple_serialization(kind, serialized_name=name)
+                        _REGISTERED.add(kind)
             for child in node:
                 visit(child)
         elif isinstance(node, dict):

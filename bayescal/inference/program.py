@@ -13,6 +13,7 @@ not hundreds of small op-by-op compilations.
 
 from __future__ import annotations
 
+import functools
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -26,7 +27,7 @@ from numpyro.distributions.transforms import biject_to
 from numpyro.infer.util import constrain_fn, log_likelihood, potential_energy, unconstrain_fn
 
 from bayescal._config import computes
-from bayescal.inference.persist import dtype_of, load_json, persisted, save_json, structure_key
+from bayescal.inference.persist import TRACING, dtype_of, load_json, persisted, save_json, structure_key
 from bayescal.model.assemble import CalibrationModel
 
 __all__ = ["Objective", "Program", "Smooth", "program_for", "program_of", "clear_program_cache"]
@@ -183,8 +184,22 @@ def _shape_key(data) -> tuple:
     return tuple((np.shape(x), str(dtype_of(x))) for x in jax.tree.leaves(data))
 
 
+def _one_tracer[F: Callable](fn: F) -> F:
+    """``fn``, which runs a numpyro model's Python, holding :data:`~bayescal.inference.persist.TRACING` while
+    it runs (when a jit traces it; a compiled program runs without it): numpyro's effect handlers are one
+    stack per process, so two threads may not trace models at once."""
+
+    @functools.wraps(fn)
+    def traced(*args):
+        with TRACING:
+            return fn(*args)
+
+    return traced  # type: ignore[return-value]
+
+
 def _build(model: Callable, example, obs: str = "obs", disk: str | None = None) -> Program:
 
+    @_one_tracer
     def latent_unconstrained(data):
         tr = handlers.trace(handlers.seed(model, 0)).get_trace(data)
         return {
@@ -196,16 +211,20 @@ def _build(model: Callable, example, obs: str = "obs", disk: str | None = None) 
     shapes = _latent_shapes(latent_unconstrained, example, disk)
     z0, unravel = _flat_layout(shapes)
 
+    @_one_tracer
     def potential(z, data):
         return potential_energy(model, (data,), {}, unravel(z))
 
+    @_one_tracer
     def constrain_one(z, data):
         return constrain_fn(model, (data,), {}, unravel(z), return_deterministic=True)
 
+    @_one_tracer
     def unconstrain(values, data):
         z = unconstrain_fn(model, (data,), {}, values)
         return ravel_pytree({k: z[k] for k in shapes})[0]
 
+    @_one_tracer
     def loglik_one(z, data):
         params = constrain_fn(model, (data,), {}, unravel(z))
         return log_likelihood(model, params, data, batch_ndims=0)[obs]
