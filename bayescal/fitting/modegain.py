@@ -4,14 +4,17 @@ A candidate of the diagnosis (:mod:`bayescal.fitting.diagnose`) is judged by its
 predictive density, PSIS-LOO over 4000 Laplace draws of a full fit.  Most candidates of a dataset the
 library cannot explain gain nothing, and a full fit of each costs seconds (a monotone roll-off's, with a
 quadrature in every evaluation, 7-9 s).  The gain of the log-likelihood at the candidate's mode over the
-model's at its own, row by row, is an optimistic bound on that gain: leaving a row out costs a nested model
-with more parameters at least as much as the model it nests (its effective number of parameters, ``p_loo``,
-is larger), and a plug-in density at the mode rewards fitting the very rows it is judged on.  A candidate
-whose in-sample gain stays under :data:`SCREEN_SE` standard errors of its paired differences cannot reach
-the two standard errors of elpd_loo that adoption needs; only its mode is searched (its value, gradient,
-Hessian and pointwise log-likelihood programs; none of the draws, the constrained posterior, the checks or
-the PSIS smoothing of a full fit).  ``benchmarks/diagnosis_screen.py`` measures the bound against PSIS-LOO
-on the independent bench's departures.
+model's at its own, row by row, is as a rule larger than that gain: leaving a row out costs a model with
+more parameters more than the model it nests (its effective number of parameters, ``p_loo``, is larger),
+and a density at the mode rewards fitting the very rows it is judged on.  It is not a strict bound (the
+posterior's average density can beat the density at the mode), so the screen keeps a margin: a candidate
+whose in-sample gain stays at most :data:`SCREEN_SE` standard errors of its paired differences is taken
+as unable to reach the two standard errors of elpd_loo that adoption needs, and only its mode is searched
+(its value, gradient, Hessian and pointwise log-likelihood programs; none of the draws, the constrained
+posterior, the checks or the PSIS smoothing of a full fit).  ``benchmarks/diagnosis_screen.py`` measures
+the screen against PSIS-LOO on both independent simulators' departures: PSIS-LOO gained more than the
+in-sample gain on 8 % of the candidates, by at most 0.54 of the in-sample standard errors, and no
+candidate screened out would have been adopted.
 """
 
 from __future__ import annotations
@@ -33,7 +36,8 @@ from bayescal.model.spec import ModelSpec
 __all__ = ["ModeFit", "mode_fit", "mode_fits", "paired_gain", "SCREEN_SE"]
 
 #: a candidate whose in-sample gain at its mode is at most this many standard errors of the paired
-#: differences is screened out (adoption needs 2 of elpd_loo's, which the in-sample gain bounds from above)
+#: differences is screened out (adoption needs 2 of elpd_loo's; the in-sample gain, as a rule the larger,
+#: fell short of elpd_loo's by at most 0.54 se on the independent simulators)
 SCREEN_SE = 1.0
 
 

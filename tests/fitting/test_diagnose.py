@@ -87,8 +87,9 @@ def test_a_dark_drift_without_times_is_named_not_blamed_on_something_else():
     assert found.explained and result.ok
     best = found.steps[0].iloc[0]
     assert best.elpd_diff > 2 * best.dse
-    # the screen: the in-sample gain at the mode bounds the elpd_loo gain; what it kept out could not reach 2 se
-    assert best.mode_gain >= best.elpd_diff
+    # the screen: the adopted switch's in-sample gain at its mode is not below its elpd_loo gain by its margin
+    # (one in-sample se; 0.54 at most on the independent simulators), and what it kept out gained at most that
+    assert best.mode_gain >= best.elpd_diff - SCREEN_SE * best.mode_dse
     screened = found.steps[0][found.steps[0].screened]
     assert len(screened) and (screened.mode_gain <= SCREEN_SE * screened.mode_dse).all()
     assert screened.elpd_diff.isna().all()
