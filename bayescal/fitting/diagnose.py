@@ -190,23 +190,29 @@ def decide_domain(table: MeasurementTable, spec: ModelSpec, seed: int = 0) -> tu
     camera whose nonlinearity is the output's passes every check yet its offsets and gains cover the
     truth 0.37 of the time on the independent bench (benchmarks/results/misspecification.md).
 
+    The other domain is screened by its mode first (:mod:`bayescal.fitting.modegain`): when its in-sample
+    gain is at most :data:`SCREEN_SE` standard errors it cannot be taken, and it is not fitted further
+    (``elpd_diff_other`` is then None and ``mode_gain`` says why).
+
     Returns the chosen spec, the comparison (None when the table cannot tell), and the chosen
     spec's Laplace fit."""
     change = other_domain(spec, table)
     if change is None:
         return spec, None, None
     other = spec.replace(**change)
-    fits = [_quiet_fit(table, laplace_proxy(s), "laplace", seed) for s in (spec, other)]
+    info = {"spec": spec.response.nonlinearity_domain, "other": other.response.nonlinearity_domain}
+    modes = mode_fits(table, {"spec": laplace_proxy(spec), "other": laplace_proxy(other)})
+    gain, gain_se = paired_gain(modes["spec"].loglik, modes["other"].loglik)
+    info |= {"mode_gain": gain, "mode_dse": gain_se}
+    own = _quiet_fit(table, laplace_proxy(spec), "laplace", seed)
+    if modes["spec"].converged and modes["other"].converged and gain <= SCREEN_SE * gain_se:
+        info |= {"elpd_diff_other": np.nan, "dse": np.nan, "chosen": info["spec"], "screened": True}
+        return spec, info, own if laplace_proxy(spec) is spec else None
+    fits = [own, _quiet_fit(table, laplace_proxy(other), "laplace", seed)]
     diff, se = _difference(*(_loo(f) for f in fits))
     take = diff > EVIDENCE_SE * se
     chosen = other if take else spec
-    info = {
-        "spec": spec.response.nonlinearity_domain,
-        "other": other.response.nonlinearity_domain,
-        "elpd_diff_other": diff,
-        "dse": se,
-        "chosen": chosen.response.nonlinearity_domain,
-    }
+    info |= {"elpd_diff_other": diff, "dse": se, "chosen": chosen.response.nonlinearity_domain, "screened": False}
     return chosen, info, fits[1 if take else 0] if laplace_proxy(spec) is spec else None
 
 

@@ -98,3 +98,21 @@ def test_loo_tells_the_domains_apart(sense_node_bench):
     print("\n", cmp)
     assert cmp.index[0] == "order 2, nonlinearity of the charge"
     assert -cmp.loc["order 2", "elpd_diff"] > 3 * cmp.loc["order 2", "dse"]
+
+
+def test_the_domain_decision_takes_the_true_domain_and_screens_the_other(sense_node_bench):
+    """decide_domain on the sense-node bench (the compression is the charge's): from the output spec the
+    charge is taken by PSIS-LOO (its in-sample gain at the mode passes the screen); from the charge spec
+    the output is not taken, and when the screen keeps it out its in-sample gain is at most one se."""
+    from bayescal.fitting.diagnose import decide_domain
+    from bayescal.fitting.modegain import SCREEN_SE
+
+    spec, table, _ = sense_node_bench
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        chosen, info, fit = decide_domain(table, spec.replace(response={"nonlinearity_domain": "output"}), seed=0)
+        assert chosen.response.nonlinearity_domain == "charge" and not info["screened"], info
+        assert info["elpd_diff_other"] > 2 * info["dse"] and fit.model.spec.response.nonlinearity_domain == "charge"
+        chosen, info, _ = decide_domain(table, spec.replace(response={"nonlinearity_domain": "charge"}), seed=0)
+    assert chosen.response.nonlinearity_domain == "charge", info
+    assert not info["screened"] or info["mode_gain"] <= SCREEN_SE * info["mode_dse"]
