@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -200,7 +201,7 @@ def decide_domain(table: MeasurementTable, spec: ModelSpec, seed: int = 0) -> tu
     if change is None:
         return spec, None, None
     other = spec.replace(**change)
-    info = {"spec": spec.response.nonlinearity_domain, "other": other.response.nonlinearity_domain}
+    info: dict[str, Any] = {"spec": spec.response.nonlinearity_domain, "other": other.response.nonlinearity_domain}
     modes = mode_fits(table, {"spec": laplace_proxy(spec), "other": laplace_proxy(other)})
     gain, gain_se = paired_gain(modes["spec"].loglik, modes["other"].loglik)
     info |= {"mode_gain": gain, "mode_dse": gain_se}
