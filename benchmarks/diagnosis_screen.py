@@ -27,7 +27,7 @@ import pandas as pd
 
 import bayescal as bc
 from bayescal.fitting import diagnose as dg
-from bayescal.fitting.modegain import SCREEN_SE, mode_fit, paired_gain
+from bayescal.fitting.modegain import mode_fit, screen
 from bayescal.report.text import markdown_table
 from bayescal.validation import BenchCamera, simulate_bench, with_held_out
 from bayescal.validation.wild import simulate_wild
@@ -49,20 +49,19 @@ def judged(name: str, table: bc.MeasurementTable, spec, seed: int) -> list[dict]
         t0 = time.perf_counter()
         own = mode_fit(table, trial)
         t_mode = time.perf_counter() - t0
-        gain, gain_se = paired_gain(base_mode.loglik, own.loglik)
+        by = screen(base_mode, own)
         t0 = time.perf_counter()
         result = dg._quiet_fit(table, trial, "laplace", seed)
         loo_gain, loo_se = dg._difference(base_loo, dg._loo(result))
-        screened = own.converged and base_mode.converged and gain <= SCREEN_SE * gain_se
         rows.append(
             {
                 "dataset": name,
                 "candidate": candidate,
-                "mode_gain": gain,
-                "mode_dse": gain_se,
+                "mode_gain": by.gain,
+                "mode_dse": by.se,
                 "loo_gain": loo_gain,
                 "loo_dse": loo_se,
-                "screened": screened,
+                "screened": by.out,
                 "would_adopt": loo_gain > dg.EVIDENCE_SE * loo_se,
                 "mode_s": t_mode,
                 "full_s": time.perf_counter() - t0,

@@ -33,7 +33,7 @@ import pandas as pd
 
 from bayescal.errors import FitFailedWarning
 from bayescal.fitting.fit import fit
-from bayescal.fitting.modegain import SCREEN_SE, mode_fits, paired_gain
+from bayescal.fitting.modegain import mode_fits, paired_gain, screen
 from bayescal.fitting.result import Fit
 from bayescal.io.table import MeasurementTable
 from bayescal.model.components import EFFECTS
@@ -191,9 +191,9 @@ def decide_domain(table: MeasurementTable, spec: ModelSpec, seed: int = 0) -> tu
     camera whose nonlinearity is the output's passes every check yet its offsets and gains cover the
     truth 0.37 of the time on the independent bench (benchmarks/results/misspecification.md).
 
-    The other domain is screened by its mode first (:mod:`bayescal.fitting.modegain`): when its in-sample
-    gain is at most :data:`SCREEN_SE` standard errors it cannot be taken, and it is not fitted further
-    (``elpd_diff_other`` is then None and ``mode_gain`` says why).
+    The other domain is screened by its mode first (:func:`~bayescal.fitting.modegain.screen`): when its
+    in-sample gain is at most :data:`~bayescal.fitting.modegain.SCREEN_SE` standard errors it cannot be
+    taken, and it is not fitted further (``elpd_diff_other`` is then None and ``mode_gain`` says why).
 
     Returns the chosen spec, the comparison (None when the table cannot tell), and the chosen
     spec's Laplace fit."""
@@ -203,10 +203,10 @@ def decide_domain(table: MeasurementTable, spec: ModelSpec, seed: int = 0) -> tu
     other = spec.replace(**change)
     info: dict[str, Any] = {"spec": spec.response.nonlinearity_domain, "other": other.response.nonlinearity_domain}
     modes = mode_fits(table, {"spec": laplace_proxy(spec), "other": laplace_proxy(other)})
-    gain, gain_se = paired_gain(modes["spec"].loglik, modes["other"].loglik)
-    info |= {"mode_gain": gain, "mode_dse": gain_se}
+    kept_out = screen(modes["spec"], modes["other"])
+    info |= {"mode_gain": kept_out.gain, "mode_dse": kept_out.se}
     own = _quiet_fit(table, laplace_proxy(spec), "laplace", seed)
-    if modes["spec"].converged and modes["other"].converged and gain <= SCREEN_SE * gain_se:
+    if kept_out.out:
         info |= {"elpd_diff_other": np.nan, "dse": np.nan, "chosen": info["spec"], "screened": True}
         return spec, info, own if laplace_proxy(spec) is spec else None
     fits = [own, _quiet_fit(table, laplace_proxy(other), "laplace", seed)]
@@ -347,9 +347,10 @@ def diagnose(
 
     ``base``: a Laplace fit of ``spec`` already made (refitted otherwise).  ``offered(spec, table)``:
     the candidates to try (default :func:`candidates`; :func:`screen_candidates` for a fit that passed).
-    ``by_mode``: a candidate whose log-likelihood at its mode gains at most :data:`SCREEN_SE` standard
-    errors over the model so far's in-sample is not fitted further (:mod:`bayescal.fitting.modegain`);
-    off where every candidate the data cannot tell from the spec is wanted (:func:`structure_doubt`).
+    ``by_mode``: a candidate whose log-likelihood at its mode gains at most
+    :data:`~bayescal.fitting.modegain.SCREEN_SE` standard errors over the model so far's in-sample is not
+    fitted further (:func:`~bayescal.fitting.modegain.screen`); off where every candidate the data cannot
+    tell from the spec is wanted (:func:`structure_doubt`).
     """
     offered = offered or candidates
     current_spec = spec
@@ -375,18 +376,18 @@ def diagnose(
         modes = mode_fits(table, {"": laplace_proxy(current_spec)} | searched) if by_mode else {}
         at_mode = modes.get("")
         for name, (trial, changes) in offers.items():
-            screen = {"mode_gain": np.nan, "mode_dse": np.nan, "screened": False}
-            if at_mode is not None:
-                own = modes[name]
-                gain, se = paired_gain(at_mode.loglik, own.loglik)
-                screen |= {"mode_gain": gain, "mode_dse": se}
-                if own.converged and at_mode.converged and gain <= SCREEN_SE * se:
-                    rows.append(
-                        {"candidate": name, "elpd_diff": np.nan, "dse": np.nan, "fit_ok": False, "changes": changes}
-                        | screen
-                        | {"screened": True}
-                    )
-                    continue
+            by = screen(at_mode, modes[name]) if at_mode is not None else None
+            screened = {
+                "mode_gain": np.nan if by is None else by.gain,
+                "mode_dse": np.nan if by is None else by.se,
+                "screened": by is not None and by.out,
+            }
+            if screened["screened"]:
+                rows.append(
+                    {"candidate": name, "elpd_diff": np.nan, "dse": np.nan, "fit_ok": False, "changes": changes}
+                    | screened
+                )
+                continue
             result = _quiet_fit(table, searched[name], "laplace", seed)
             if _level_trend(result) >= LAMP_TREND:  # the "lamp errors" follow the signal: a shape, not a lamp
                 continue
@@ -395,7 +396,7 @@ def diagnose(
             fits[name] = (trial, result, loo)
             specs[name] = trial
             rows.append(
-                {"candidate": name, "elpd_diff": diff, "dse": se, "fit_ok": result.ok, "changes": changes} | screen
+                {"candidate": name, "elpd_diff": diff, "dse": se, "fit_ok": result.ok, "changes": changes} | screened
             )
         if not rows:
             return None, fits

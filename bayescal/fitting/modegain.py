@@ -33,7 +33,7 @@ from bayescal.io.table import MeasurementTable
 from bayescal.model.assemble import build_model
 from bayescal.model.spec import ModelSpec
 
-__all__ = ["ModeFit", "mode_fit", "mode_fits", "paired_gain", "SCREEN_SE"]
+__all__ = ["ModeFit", "Screen", "mode_fit", "mode_fits", "paired_gain", "screen", "SCREEN_SE"]
 
 #: a candidate whose in-sample gain at its mode is at most this many standard errors of the paired
 #: differences is screened out (adoption needs 2 of elpd_loo's; the in-sample gain, as a rule the larger,
@@ -76,3 +76,18 @@ def paired_gain(current: np.ndarray, candidate: np.ndarray) -> tuple[float, floa
     differences, as for elpd_loo)."""
     d = np.asarray(candidate, dtype=float).ravel() - np.asarray(current, dtype=float).ravel()
     return float(d.sum()), float(np.sqrt(d.size * np.var(d)))
+
+
+class Screen(NamedTuple):
+    """A candidate's in-sample gain at its mode over the model so far's, its se, and whether it is screened
+    out (both modes found and the gain at most :data:`SCREEN_SE` se)."""
+
+    gain: float
+    se: float
+    out: bool
+
+
+def screen(current: ModeFit, candidate: ModeFit) -> Screen:
+    """The screen of ``candidate`` against ``current`` (see the module docstring)."""
+    gain, se = paired_gain(current.loglik, candidate.loglik)
+    return Screen(gain, se, bool(current.converged and candidate.converged and gain <= SCREEN_SE * se))
