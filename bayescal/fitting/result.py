@@ -27,6 +27,7 @@ from bayescal.fitting.holdout import holdout_checks
 from bayescal.fitting.misfit import MisfitThresholds, misfit_checks
 from bayescal.inference import registry as backends
 from bayescal.inference.diagnostics import Diagnostics
+from bayescal.inference.program import LOGLIK
 from bayescal.io.files import write_json_atomic, write_netcdf
 from bayescal.io.fit_folder import LSQ, POSTERIOR, SUMMARY, TABLE
 from bayescal.io.outputs import staged_directory
@@ -242,8 +243,9 @@ def finish(model, program, draws, backend: str, seed: int, result, lsq, timings:
     z, stats = draws.z, draws.stats
     timings = dict(timings)
     t = time.perf_counter()
-    post, rows = _posterior(model, program, z, seed)
-    draws = backends.with_loglik(draws, program, model.data)  # the DataTree's log_likelihood group, and the verdict's
+    post, rows, loglik = _posterior(model, program, z, seed)
+    if draws.loglik is None:  # the DataTree's log_likelihood group, and the verdict's
+        draws = replace(draws, loglik=loglik)
     loglik = draws.loglik
     timings["posterior"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -290,15 +292,16 @@ def row_summaries(sites: dict) -> dict[str, np.ndarray]:
     }
 
 
-def _posterior(model: CalibrationModel, program, z: np.ndarray, seed: int) -> tuple[dict, dict]:
-    """Reported draws, and each row's posterior predictive mean and variance (scaled units)."""
+def _posterior(model: CalibrationModel, program, z: np.ndarray, seed: int) -> tuple[dict, dict, np.ndarray]:
+    """Reported draws, each row's posterior predictive mean and variance (scaled units), and each draw's
+    pointwise log-likelihood ``(chain, draw, row)`` (one pass of the program over the draws)."""
     chains, draws, dim = z.shape
     sites = program.constrain(np.asarray(z).reshape(-1, dim), model.data)
     rows = row_summaries(sites)
     sites = {k: np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]) for k, v in sites.items()}
     post = {k: v for k, v in sites.items() if k in SAMPLED}
     post.update(physical_draws(model, sites, seed))
-    return post, rows
+    return post, rows, sites[LOGLIK]
 
 
 #: a row whose reading lies this many predictive sds from the posterior mean is reported (p ~ 6e-7 each)

@@ -7,6 +7,7 @@ import numpy as np
 import numpyro
 import numpyro.distributions as dist
 import pytest
+from scipy import stats
 
 import bayescal as bc
 from bayescal.inference import persist
@@ -57,6 +58,7 @@ def _outputs(program, data):
         "grad": np.asarray(grad),
         "hessian": np.asarray(program.hessian(z, data)),
         "a": np.asarray(sites["a"]),
+        "b": np.asarray(sites["b"]),
         "s": np.asarray(sites["s"]),
         "loglik": np.asarray(program.loglik(batch, data)),
         "unconstrain": np.asarray(program.unconstrain(values, data)),
@@ -69,7 +71,8 @@ def test_a_kept_program_is_loaded_without_tracing_and_computes_the_same(cache, d
     clear_program_cache()
     first = _outputs(program_of(line, data, structure="line v1"), data)
     kept = sorted(p.name for p in cache.iterdir())
-    assert sum(n.endswith(".jaxexport") for n in kept) == 5 and sum(n.endswith("-latent.json") for n in kept) == 1
+    # value and gradient, Hessian, the constrained sites with the log-likelihood, unconstrain
+    assert sum(n.endswith(".jaxexport") for n in kept) == 4 and sum(n.endswith("-latent.json") for n in kept) == 1
     clear_program_cache()
     TRACES.clear()
     again = _outputs(program_of(line, data, structure="line v1"), data)
@@ -78,6 +81,9 @@ def test_a_kept_program_is_loaded_without_tracing_and_computes_the_same(cache, d
         np.testing.assert_allclose(first[name], expected, rtol=1e-12, atol=1e-12, err_msg=name)
         np.testing.assert_allclose(again[name], expected, rtol=1e-12, atol=1e-12, err_msg=name)
     assert np.isfinite(plain["value"]) and plain["loglik"].shape == (7, 30)
+    # the log-likelihood the constrain program carries is the model's, in closed form
+    t = stats.t.logpdf(data.y, 5.0, loc=plain["a"][:, None] + plain["b"][:, None] * data.x, scale=plain["s"][:, None])
+    np.testing.assert_allclose(plain["loglik"], t, rtol=1e-10)
 
 
 def test_another_structure_or_shape_is_kept_apart(cache, data):
