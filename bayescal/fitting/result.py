@@ -296,7 +296,7 @@ def _posterior(model: CalibrationModel, program, z: np.ndarray, seed: int) -> tu
     """Reported draws, each row's posterior predictive mean and variance (scaled units), and each draw's
     pointwise log-likelihood ``(chain, draw, row)`` (one pass of the program over the draws)."""
     chains, draws, dim = z.shape
-    sites = program.constrain(np.asarray(z).reshape(-1, dim), model.data)
+    sites = program.constrain(np.asarray(z).reshape(-1, dim), model.data, loglik=True)
     rows = row_summaries(sites)
     sites = {k: np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]) for k, v in sites.items()}
     post = {k: v for k, v in sites.items() if k in SAMPLED}

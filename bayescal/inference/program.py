@@ -20,11 +20,12 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 from numpyro import handlers
 from numpyro.distributions.transforms import biject_to
-from numpyro.infer.util import constrain_fn, log_likelihood, potential_energy, unconstrain_fn
+from numpyro.infer.util import potential_energy, unconstrain_fn
 
 from bayescal._config import computes
 from bayescal.inference.persist import TRACING, dtype_of, load_json, persisted, save_json, structure_key
@@ -118,10 +119,11 @@ class Program:
     value_and_grad, hessian : callable
         Its value and gradient, and Hessian, in ``z``.
     constrain : callable
-        ``constrain(z_batch, data)``: dict of constrained sites (and
-        deterministic sites) for a batch of flat vectors, with each row's
-        log-likelihood under :data:`LOGLIK` (one program: the model's forward
-        pass is shared, and a fit loads one program where it loaded two).
+        ``constrain(z_batch, data, loglik=False)``: dict of constrained sites
+        (and deterministic sites) for a batch of flat vectors; with ``loglik``,
+        each row's log-likelihood too, under :data:`LOGLIK` (one program, one
+        run of the model: a fit's posterior gets both in one pass, and loads one
+        program where it loaded two).
     unconstrain : callable
         ``unconstrain(values, data)``: flat unconstrained vector of a dict of
         constrained values (one per latent site).
@@ -221,10 +223,28 @@ def _build(model: Callable, example, obs: str = "obs", disk: str | None = None) 
         return potential_energy(model, (data,), {}, unravel(z))
 
     @_one_tracer
-    def constrain_one(z, data):
-        sites = constrain_fn(model, (data,), {}, unravel(z), return_deterministic=True)
-        latent = {k: sites[k] for k in shapes}
-        return sites | {LOGLIK: log_likelihood(model, latent, data, batch_ndims=0)[obs]}
+    def constrain_one(z, data, with_loglik):
+        """One run of the model with each latent mapped to its support: the constrained and deterministic
+        sites, and where ``with_loglik`` (a scalar flag, one for the whole batch: a branch taken, not both
+        computed) the observed site's log-density row by row (its mask applied; zeros otherwise)."""
+        params = unravel(z)
+
+        def constrained(site):
+            name = site["name"]
+            return biject_to(site["fn"].support)(params[name]) if name in params else None
+
+        tr = handlers.trace(handlers.substitute(handlers.seed(model, 0), substitute_fn=constrained)).get_trace(data)
+        sites = {
+            name: site["value"]
+            for name, site in tr.items()
+            if site["type"] == "deterministic" or (site["type"] == "sample" and not site["is_observed"])
+        }
+        site = tr[obs]
+        rows = jax.ShapeDtypeStruct(jnp.shape(site["value"]), z.dtype)
+        loglik = jax.lax.cond(
+            with_loglik, lambda: site["fn"].log_prob(site["value"]).astype(z.dtype), lambda: jnp.zeros_like(rows)
+        )
+        return sites | {LOGLIK: loglik}
 
     @_one_tracer
     def unconstrain(values, data):
@@ -232,7 +252,7 @@ def _build(model: Callable, example, obs: str = "obs", disk: str | None = None) 
         return ravel_pytree({k: z[k] for k in shapes})[0]
 
     smooth = Objective.of(potential)
-    constrain = computes(_in_blocks(persisted(jax.vmap(constrain_one, in_axes=(0, None)), disk, "constrain")))
+    constrain = _constrain(persisted(jax.vmap(constrain_one, in_axes=(0, None, None)), disk, "constrain"))
     return Program(
         model=model,
         z0=z0,
@@ -242,7 +262,7 @@ def _build(model: Callable, example, obs: str = "obs", disk: str | None = None) 
         hessian=computes(persisted(smooth.hessian, disk, "hessian")),
         constrain=constrain,
         unconstrain=computes(persisted(unconstrain, disk, "unconstrain")),
-        loglik=lambda z_batch, data: constrain(z_batch, data)[LOGLIK],
+        loglik=lambda z_batch, data: constrain(z_batch, data, loglik=True)[LOGLIK],
     )
 
 
@@ -277,10 +297,23 @@ def _latent_shapes(latent_unconstrained: Callable, example, disk: str | None) ->
 BLOCK = 500
 
 
-def _in_blocks(batched: Callable) -> Callable:
-    """``batched(z_batch, data)`` over blocks of :data:`BLOCK` rows (the last padded), the results joined."""
+def _constrain(batched: Callable) -> Callable:
+    """``constrain(z_batch, data, loglik=False)`` from the vmapped ``batched(z_batch, data, with_loglik)``: the
+    sites, with :data:`LOGLIK` only when asked."""
+    blocks = _in_blocks(batched)
 
-    def run(z_batch, data):
+    @computes
+    def constrain(z_batch, data, loglik: bool = False) -> dict:
+        sites = blocks(z_batch, data, np.asarray(loglik))
+        return sites if loglik else {k: v for k, v in sites.items() if k != LOGLIK}
+
+    return constrain
+
+
+def _in_blocks(batched: Callable) -> Callable:
+    """``batched(z_batch, data, *rest)`` over blocks of :data:`BLOCK` rows (the last padded), the results joined."""
+
+    def run(z_batch, data, *rest):
         z_batch = np.asarray(z_batch)
         n = z_batch.shape[0]
         parts = []
@@ -289,7 +322,7 @@ def _in_blocks(batched: Callable) -> Callable:
             rows = block.shape[0]
             if rows < BLOCK:
                 block = np.concatenate([block, np.repeat(block[-1:], BLOCK - rows, axis=0)])
-            parts.append(jax.tree.map(lambda a, r=rows: np.asarray(a)[:r], batched(block, data)))
+            parts.append(jax.tree.map(lambda a, r=rows: np.asarray(a)[:r], batched(block, data, *rest)))
         if len(parts) == 1:
             return parts[0]
         return jax.tree.map(lambda *a: np.concatenate(a), *parts)
