@@ -174,6 +174,11 @@ def persisted(fn: Callable, key: str | None, name: str) -> Callable:
         run = calls.get(signature)
         if run is None:
             run = calls[signature] = _resolve(jitted, args, key, name, signature)
+        if any(isinstance(x, jax.Array) for x in leaves):
+            # one kind of argument: jit keys an array placed on a device apart from a host array of the same
+            # shape, so a mode search started from a device array (the start) and continued on host arrays
+            # (Newton's steps) loaded each program twice, 0.15-0.5 s each on a camera's model
+            args = jax.tree.unflatten(tree, [np.asarray(x) if isinstance(x, jax.Array) else x for x in leaves])
         return run(*args)
 
     call.__name__ = call.__qualname__ = name

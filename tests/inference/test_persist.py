@@ -168,3 +168,32 @@ def test_the_key_follows_the_source_the_trace_runs_and_no_other():
         "_config.py",
     } <= names
     assert not {n for n in names if n.startswith(("cli/", "fitting/", "report/", "fleet/"))}
+
+
+def test_a_kept_program_is_compiled_once_for_device_and_host_arguments(cache, data):
+    """A mode search starts from a device array and steps on host arrays: both kinds of argument run the one
+    compiled program (the jit keyed them apart, and each new structure's programs were loaded twice)."""
+    import jax
+    import jax.numpy as jnp
+    from jax import monitoring
+
+    compiled: list[str] = []
+
+    def listen(event: str, seconds: float, **kw) -> None:
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(event)
+
+    with bc.numerics():
+        program_of(line, data, structure="line v1").value_and_grad(np.zeros(3), data)  # traced and kept
+        clear_program_cache()
+        program = program_of(line, data, structure="line v1")
+        monitoring.register_event_duration_secs_listener(listen)
+        try:
+            on_device = jax.device_put(jnp.asarray([0.3, 1.7, -1.2]), jax.devices()[0])
+            first = program.value_and_grad(on_device, data)
+            loaded = len(compiled)
+            second = program.value_and_grad(np.array([0.3, 1.7, -1.2]), data)
+        finally:
+            monitoring.unregister_event_duration_listener(listen)
+    assert loaded >= 1 and len(compiled) == loaded  # the host call compiled nothing more
+    np.testing.assert_array_equal(np.asarray(first[1]), np.asarray(second[1]))
