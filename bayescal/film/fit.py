@@ -30,7 +30,7 @@ from bayescal.fitting.result import fail
 from bayescal.inference import registry as backends
 from bayescal.inference.diagnostics import Diagnostics
 from bayescal.inference.laplace import laplace
-from bayescal.inference.program import program_of
+from bayescal.inference.program import LOGLIK, program_of
 from bayescal.io.files import write_json_atomic, write_netcdf
 from bayescal.io.fit_folder import POSTERIOR, SUMMARY, TABLE
 from bayescal.io.outputs import staged_directory
@@ -213,10 +213,11 @@ def fit_film_table(
     sampler = backends.get(backend)
     for m, draws, mode in zip(models, samples, modes, strict=True):
         chains, n, dim = draws.z.shape
-        sites = program.constrain(draws.z.reshape(-1, dim), m.data)
+        sites = program.constrain(draws.z.reshape(-1, dim), m.data, loglik=backends.reads_loglik(sampler))
+        known = sites.pop(LOGLIK, None)  # the verdict's log-likelihood, from the same pass
         sites = {k: np.asarray(v).reshape((chains, n) + np.shape(v)[1:]) for k, v in sites.items() if k != "D"}
         judged = {k: sites[k] for k in JUDGED}
-        diag = sampler.verdict(backends.judged(sampler, draws, program, m.data), judged, spec, mode)
+        diag = sampler.verdict(backends.judged(sampler, draws, program, m.data, known), judged, spec, mode)
         bands[m.band] = BandFit(m.band, sites, diag)
     result = FilmFit(spec, table, backend, seed, bands, timings)
     if not result.ok:

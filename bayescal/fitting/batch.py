@@ -28,7 +28,7 @@ from bayescal.inference import registry as backends
 from bayescal.inference.guide import guide_pooled, pools
 from bayescal.inference.laplace import LaplaceResult, laplace, laplace_many
 from bayescal.inference.lsq import lsq_baseline
-from bayescal.inference.program import Program, program_for
+from bayescal.inference.program import LOGLIK, Program, program_for
 from bayescal.inference.registry import Draws
 from bayescal.inference.samplers import refuse_pooled
 from bayescal.inference.start import initial_point
@@ -72,10 +72,11 @@ class FitBatch:
         return len(self.models)
 
     # ------------------------------------------------------------------ one dataset
-    def _sites(self, i: int) -> dict[str, np.ndarray]:
-        """Dataset ``i``'s constrained sites (sampled and deterministic), ``(chain, draw, ...)``."""
+    def _sites(self, i: int, loglik: bool = False) -> dict[str, np.ndarray]:
+        """Dataset ``i``'s constrained sites (sampled and deterministic), ``(chain, draw, ...)``; with ``loglik``,
+        each draw's pointwise log-likelihood too (under :data:`~bayescal.inference.program.LOGLIK`)."""
         chains, draws, dim = self.samples[i].z.shape
-        with_data = self.program.constrain(self.samples[i].z.reshape(-1, dim), self.models[i].data)
+        with_data = self.program.constrain(self.samples[i].z.reshape(-1, dim), self.models[i].data, loglik=loglik)
         return {k: np.asarray(v).reshape((chains, draws) + np.shape(v)[1:]) for k, v in with_data.items()}
 
     @computes
@@ -107,7 +108,7 @@ class FitBatch:
         stacked: dict[str, list] = {}
         worst, misfits, verdicts = np.empty(len(self)), [], []
         for i, m in enumerate(self.models):
-            sites = self._sites(i)
+            sites = self._sites(i, loglik=backends.reads_loglik(backend))  # the verdict's, in the same pass
             flat = {k: v.reshape((-1,) + v.shape[2:]) for k, v in sites.items()}
             rows = row_summaries(flat)
             resid = (np.asarray(m.data.y) - rows["mean"]) / np.sqrt(rows["var"])
@@ -115,7 +116,7 @@ class FitBatch:
             excess = flat["excess"] * m.layout.dn_scale if "excess" in flat else None
             misfits.append(misfit_of(m, rows, excess)[0])
             sampled = {k: v for k, v in sites.items() if k in SAMPLED}
-            draws = backends.judged(backend, self.samples[i], self.program, m.data)
+            draws = backends.judged(backend, self.samples[i], self.program, m.data, sites.get(LOGLIK))
             verdicts.append(backend.verdict(draws, sampled, m.spec, self.modes[i]))
             for k, v in sampled.items():
                 stacked.setdefault(k, []).append(v)

@@ -10,8 +10,8 @@ and a density at the mode rewards fitting the very rows it is judged on.  It is 
 posterior's average density can beat the density at the mode), so the screen keeps a margin: a candidate
 whose in-sample gain stays at most :data:`SCREEN_SE` standard errors of its paired differences is taken
 as unable to reach the two standard errors of elpd_loo that adoption needs, and only its mode is searched
-(its value, gradient, Hessian and pointwise log-likelihood programs; none of the draws, the constrained
-posterior, the checks or the PSIS smoothing of a full fit).  ``benchmarks/diagnosis_screen.py`` measures
+(its value, gradient and Hessian programs, and the constrained sites' with the log-likelihood at the mode;
+none of the draws, the checks or the PSIS smoothing of a full fit).  ``benchmarks/diagnosis_screen.py`` measures
 the screen against PSIS-LOO on both independent simulators' departures: PSIS-LOO gained more than the
 in-sample gain on 14 of 186 candidates, by at most 0.71 of the in-sample standard errors, and no
 candidate screened out would have been adopted.

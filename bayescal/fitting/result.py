@@ -244,8 +244,8 @@ def finish(model, program, draws, backend: str, seed: int, result, lsq, timings:
     timings = dict(timings)
     t = time.perf_counter()
     post, rows, loglik = _posterior(model, program, z, seed)
-    if draws.loglik is None:  # the DataTree's log_likelihood group, and the verdict's
-        draws = replace(draws, loglik=loglik)
+    # the DataTree's log_likelihood group, and the verdict's
+    draws = backends.with_loglik(draws, program, model.data, loglik)
     loglik = draws.loglik
     timings["posterior"] = time.perf_counter() - t
     t = time.perf_counter()

@@ -240,9 +240,10 @@ def _build(model: Callable, example, obs: str = "obs", disk: str | None = None) 
             if site["type"] == "deterministic" or (site["type"] == "sample" and not site["is_observed"])
         }
         site = tr[obs]
-        rows = jax.ShapeDtypeStruct(jnp.shape(site["value"]), z.dtype)
         loglik = jax.lax.cond(
-            with_loglik, lambda: site["fn"].log_prob(site["value"]).astype(z.dtype), lambda: jnp.zeros_like(rows)
+            with_loglik,
+            lambda: site["fn"].log_prob(site["value"]).astype(z.dtype),
+            lambda: jnp.zeros(jnp.shape(site["value"]), z.dtype),
         )
         return sites | {LOGLIK: loglik}
 

@@ -62,19 +62,28 @@ class Draws:
     loglik: np.ndarray | None = None
 
 
-def with_loglik(draws: Draws, program: Program, data) -> Draws:
-    """``draws`` with their pointwise log-likelihood ``(chain, draw, row)``, computed when not there yet."""
+def with_loglik(draws: Draws, program: Program, data, known: np.ndarray | None = None) -> Draws:
+    """``draws`` with their pointwise log-likelihood ``(chain, draw, row)``: ``known`` when the caller has it
+    already (``program.constrain(..., loglik=True)`` gives it with the sites, in the same pass), computed
+    when neither it nor the draws have it."""
     if draws.loglik is not None:
         return draws
     chains, n, dim = np.shape(draws.z)
-    loglik = np.asarray(program.loglik(np.asarray(draws.z).reshape(-1, dim), data)).reshape(chains, n, -1)
-    return replace(draws, loglik=loglik)
+    if known is None:
+        known = program.loglik(np.asarray(draws.z).reshape(-1, dim), data)
+    return replace(draws, loglik=np.asarray(known).reshape(chains, n, -1))
 
 
-def judged(backend: Backend, draws: Draws, program: Program, data) -> Draws:
+def reads_loglik(backend: Backend) -> bool:
+    """Whether ``backend.verdict`` reads the draws' pointwise log-likelihood."""
+    return bool(getattr(backend, "reads_loglik", False))
+
+
+def judged(backend: Backend, draws: Draws, program: Program, data, known: np.ndarray | None = None) -> Draws:
     """``draws`` as ``backend.verdict`` reads them: with their log-likelihood when its verdict reads it
-    (``backend.reads_loglik``; a batch keeps none, so this one is dropped after the verdict)."""
-    return with_loglik(draws, program, data) if getattr(backend, "reads_loglik", False) else draws
+    (:func:`reads_loglik`; a batch keeps none, so this one is dropped after the verdict); ``known``: see
+    :func:`with_loglik`."""
+    return with_loglik(draws, program, data, known) if reads_loglik(backend) else draws
 
 
 class Tuned(Protocol):
