@@ -20,6 +20,21 @@ def test_nuts_diagnostics(fits):
     assert d.divergences == 0 and d.max_rhat <= 1.01 and d.min_ess_bulk >= 400
 
 
+def test_the_verdict_on_the_reported_quantities_is_the_verdict_on_every_site(fits):
+    """The sampler is judged on what is reported; the sampled sites (every one reported again through a
+    monotone map or combined into reported quantities) move neither the worst R-hat nor the least ESS."""
+    from bayescal.inference.diagnostics import mcmc_diagnostics
+    from bayescal.inference.samplers import chains_dataset
+
+    _, nuts, _ = fits
+    post = nuts.posterior["posterior"].to_dataset()
+    every = mcmc_diagnostics(chains_dataset({k: post[k].values for k in post.data_vars}), 0, nuts.model.spec.inference)
+    d = nuts.diagnostics
+    assert d.max_rhat == pytest.approx(every.max_rhat, abs=1e-4)
+    assert d.min_ess_bulk == pytest.approx(every.min_ess_bulk, rel=0.02)
+    assert d.min_ess_tail == pytest.approx(every.min_ess_tail, rel=0.02)
+
+
 def test_intervals_contain_truth_and_lsq_beside(fits):
     sim, nuts, _ = fits
     s = nuts.summary
