@@ -25,7 +25,9 @@ SPEC = str(MODELS / "seed000_bayer.toml")
 @pytest.fixture(scope="module")
 def fit_dir(tmp_path_factory, good_csv):
     out = tmp_path_factory.mktemp("fits") / "fit"
-    assert main(["fit", str(good_csv), "--model", SPEC, "--backend", "laplace", "--out", str(out)]) == 0
+    assert (
+        main(["fit", str(good_csv), "--model", SPEC, "--backend", "laplace", "--no-diagnose", "--out", str(out)]) == 0
+    )
     return out
 
 

@@ -43,7 +43,23 @@ def inputs(tmp_path_factory, good_csv):
     """A Laplace fit, its table, an image of the right bit depth."""
     root = tmp_path_factory.mktemp("hostile")
     fit = root / "fit"
-    assert main(["fit", str(good_csv), "--model", SPEC, "--backend", "laplace", "--out", str(fit), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                str(good_csv),
+                "--model",
+                SPEC,
+                "--backend",
+                "laplace",
+                "--no-diagnose",
+                "--out",
+                str(fit),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     np.save(root / "frame.npy", np.full((4, 6), 600, np.uint16))
     return {"root": root, "fit": fit, "table": good_csv, "image": root / "frame.npy"}
 

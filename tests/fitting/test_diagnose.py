@@ -261,6 +261,7 @@ def test_a_rigid_roll_off_the_data_cannot_tell_from_the_flexible_one_gives_way_t
             assert lo <= truth.loc[channel, name] <= hi, (channel, name)
 
 
+@pytest.mark.slow  # the lamp candidates fitted in full (about a minute cold); the rule itself is tested below
 def test_a_lamp_error_size_the_data_cannot_tell_gives_way_to_the_wider():
     """Lamp errors of 1 % per level and channel on the independent bench (its seed 10004, the misspecification
     benchmark's fifth dataset): PSIS-LOO cannot tell 0.3 % from 1 % per level (elpd within 1 of each other);
@@ -285,6 +286,24 @@ def test_a_lamp_error_size_the_data_cannot_tell_gives_way_to_the_wider():
         for k in range(2):
             lo, hi = np.quantile(rel[:, c, k], [0.025, 0.975])
             assert lo <= truth[k] <= hi, (channel, k)
+
+
+def test_the_flexible_rival_is_wider_lamp_errors_or_the_monotone_roll_off_and_nothing_else():
+    """_more_flexible: the rule that reports a rival in place of the adopted model.  It holds for the same
+    model with wider per-channel lamp errors and for the monotone roll-off against the knee; it fails for
+    narrower lamp errors, for no lamp errors at all, for wider lamp errors that come with another change,
+    and for the knee against the monotone shape."""
+    from bayescal.fitting.diagnose import _more_flexible
+
+    spec = bc.load_spec(SPEC)
+    lamp = {size: spec.replace(sphere={"channel_level_rel": size}) for size in (0.0, 0.003, 0.01)}
+    assert _more_flexible(lamp[0.01], lamp[0.003])
+    assert not _more_flexible(lamp[0.003], lamp[0.01])
+    assert not _more_flexible(lamp[0.01], lamp[0.0])  # switching the errors on is a new term, not a wider one
+    assert not _more_flexible(lamp[0.01], lamp[0.01])
+    assert not _more_flexible(lamp[0.01].replace(response={"order": 3}), lamp[0.003])
+    knee, monotone = spec.replace(response={"rolloff": True}), spec.replace(response={"rolloff": "monotone"})
+    assert _more_flexible(monotone, knee) and not _more_flexible(knee, monotone)
 
 
 def test_paired_gain_is_the_sum_and_its_standard_error():

@@ -462,6 +462,7 @@ def test_a_few_divergences_left_after_the_retry_get_the_last_run(small_fleet, mo
 
 
 # ---------------------------------------------------------------- a fleet with known truth
+@pytest.mark.slow  # the small fleet's fit (a minute cold); the CLI test fits a fleet in the default run
 def test_leave_one_unit_out_is_reliable_on_the_small_fleet(fitted):
     """With every latent integrated out, PSIS reweights only the scales: few units have Pareto
     k > 0.7, where the conditional log-likelihood (each unit's own jitter and walk step in it)
@@ -478,6 +479,7 @@ def test_leave_one_unit_out_is_reliable_on_the_small_fleet(fitted):
     assert np.isfinite(loo["elpd_loo"]) and loo["pointwise"].shape == (result.plan.n_units,)
 
 
+@pytest.mark.slow  # the small fleet's fit (a minute cold); the CLI test fits a fleet in the default run
 def test_small_fleet_samples_cleanly_and_covers_the_truth(fitted):
     fleet, result, truth = fitted
     d = result.draws.diagnostics
@@ -530,6 +532,7 @@ def test_the_excess_where_the_channels_move_together_yields_to_the_jitter(tmp_pa
         load_spec(bad)
 
 
+@pytest.mark.slow  # the small fleet's fit (a minute cold); the CLI test fits a fleet in the default run
 def test_predictions_for_new_cameras_dates_and_drift(fitted):
     fleet, result, truth = fitted
     last = result.at("SN001", "2026-03-01")
@@ -799,6 +802,7 @@ def test_the_fleet_section_belongs_to_the_fleet_package():
     assert out.stdout.strip() == "False"
 
 
+@pytest.mark.slow  # the small fleet's fit (a minute cold); the CLI test fits a fleet in the default run
 def test_the_pooled_quantities_come_from_a_units_reported_draws_and_back(fitted):
     """What stage one pools (``log A1``, ``A0``, ``eta``) is read from a unit's reported draws by the model
     layer, and the export's inverse gives those draws back."""

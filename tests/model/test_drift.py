@@ -64,6 +64,7 @@ def _covers(fit, session) -> np.ndarray:
     return (lo <= truth) & (truth <= hi)
 
 
+@pytest.mark.slow  # a fit and the whole screen of a passing fit (about a minute cold); the glow test screens one
 def test_a_lamp_that_warms_up_is_carried_not_missed():
     """Session 47: a lamp 3.8 % low at the start, recovering, settings measured one block after another.
     The spec's fit passes every check while every A1 misses its truth; the screen of a fit that passes puts
