@@ -17,6 +17,7 @@ import pytest
 
 import bayescal as bc
 from bayescal.cli import main
+from tests.cli.conftest import laplace_fit_folder
 from tests.conftest import MODELS
 
 SPEC = str(MODELS / "seed000_bayer.toml")
@@ -25,10 +26,7 @@ SPEC = str(MODELS / "seed000_bayer.toml")
 @pytest.fixture(scope="module")
 def fit_dir(tmp_path_factory, good_csv):
     out = tmp_path_factory.mktemp("fits") / "fit"
-    assert (
-        main(["fit", str(good_csv), "--model", SPEC, "--backend", "laplace", "--no-diagnose", "--out", str(out)]) == 0
-    )
-    return out
+    return laplace_fit_folder(good_csv, out)
 
 
 def _run(capsys, *argv) -> tuple[int, str]:

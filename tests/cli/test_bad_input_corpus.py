@@ -14,6 +14,7 @@ from bayescal.cli import main
 from bayescal.io.outputs import staged_directory
 from bayescal.validation.fleet import FleetDesign, simulate_fleet
 from bayescal.validation.sensor import PixelSensor, write_stacks
+from tests.cli.conftest import laplace_fit_folder
 from tests.conftest import MODELS
 
 SPEC = str(MODELS / "seed000_bayer.toml")
@@ -27,12 +28,7 @@ def inputs(tmp_path_factory, seed000):
     table = root / "camera.csv"
     bc.simulate(spec, design, seed=5).table.write_csv(table)
     fit = root / "fit"
-    assert (
-        main(
-            ["fit", str(table), "--model", SPEC, "--backend", "laplace", "--no-diagnose", "--out", str(fit), "--quiet"]
-        )
-        == 0
-    )
+    laplace_fit_folder(table, fit)
     stacks = root / "stacks"
     write_stacks(PixelSensor(height=16, width=16), stacks, photons=[0.0, 3000.0], exposure_s=[0.1, 0.2], frames=2)
     fleet_table, _ = simulate_fleet(

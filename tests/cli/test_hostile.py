@@ -33,6 +33,7 @@ from bayescal.errors import SpecError, TableError
 from bayescal.io.ledger import LEDGER
 from bayescal.io.limits import LIMITS
 from bayescal.io.table import COLUMN_LIMITS
+from tests.cli.conftest import laplace_fit_folder
 from tests.conftest import MODELS
 
 SPEC = str(MODELS / "seed000_bayer.toml")
@@ -43,23 +44,7 @@ def inputs(tmp_path_factory, good_csv):
     """A Laplace fit, its table, an image of the right bit depth."""
     root = tmp_path_factory.mktemp("hostile")
     fit = root / "fit"
-    assert (
-        main(
-            [
-                "fit",
-                str(good_csv),
-                "--model",
-                SPEC,
-                "--backend",
-                "laplace",
-                "--no-diagnose",
-                "--out",
-                str(fit),
-                "--quiet",
-            ]
-        )
-        == 0
-    )
+    laplace_fit_folder(good_csv, fit)
     np.save(root / "frame.npy", np.full((4, 6), 600, np.uint16))
     return {"root": root, "fit": fit, "table": good_csv, "image": root / "frame.npy"}
 
