@@ -77,26 +77,27 @@ def find_map(
 
 
 def _search(program, data, z0, rounds: int, polish: bool):
-    """:func:`find_map`, with the Hessian at the mode when Newton's last step computed it (else None)."""
+    """:func:`find_map`, with the potential's value and Hessian at the mode: ``(z, converged, steps,
+    (value, hess))``, the last None where the search stopped at a point it did not evaluate."""
     if z0 is None:
         if not isinstance(program, Program):
             raise TypeError("find_map needs a start z0 for a potential that is not a model's program")
         z0 = program.z0
     z = np.asarray(z0, dtype=float)
-    z, converged, steps, hess = _newton(program, data, z, POLISH_STEPS if polish else 0)
+    z, converged, steps, at = _newton(program, data, z, POLISH_STEPS if polish else 0)
     if converged:
-        return jnp.asarray(z), True, steps, hess
+        return jnp.asarray(z), True, steps, at
+    hess = _at(program, z, data)[2]
     zj = jnp.asarray(z)
     for _ in range(rounds):
-        precond = _whitening(np.asarray(program.hessian(zj, data)))
+        precond = _whitening(hess)
         sol = _whitened_bfgs()(program.potential, zj, jnp.asarray(precond), data)
         steps += int(sol.stats["num_steps"])
         zj = zj + jnp.asarray(precond) @ sol.value
-        grad = np.asarray(program.value_and_grad(zj, data)[1])
+        value, grad, hess = _at(program, np.asarray(zj), data)
         step = precond.T @ grad  # gradient in whitened coordinates = Newton step length
         if float(step @ step) < 1e-8:
-            converged = True
-            break
+            return zj, True, steps, (value, hess)
     return zj, converged, steps, None
 
 
@@ -120,46 +121,53 @@ EIGENVALUE_FLOOR = 1e-13
 
 def _newton(
     program: Program | Smooth, data: ProgramData, z: np.ndarray, polish_steps: int = POLISH_STEPS
-) -> tuple[np.ndarray, bool, int, np.ndarray | None]:
-    """Damped saddle-free Newton from ``z``: ``(z, converged, steps, Hessian at z or None)``.
+) -> tuple[np.ndarray, bool, int, tuple[float, np.ndarray] | None]:
+    """Damped saddle-free Newton from ``z``: ``(z, converged, steps, (value, Hessian) at z or None)``.
 
     Once the squared Newton decrement is below :data:`CONVERGED_DECREMENT` the iterate is in the
     quadratic regime: up to ``polish_steps`` full steps then polish it (no line search, whose
     test would be decided by the rounding of the potential there) while they still shrink the
     decrement below :data:`NEWTON_DECREMENT`.
     """
-    value, grad = (np.asarray(a) for a in program.value_and_grad(z, data))
+    value, grad, hess = _at(program, z, data)
     polish = 0
     for step in range(NEWTON_STEPS):
         if not (np.isfinite(value) and np.all(np.isfinite(grad))):
             return z, False, step, None
-        hess = np.asarray(program.hessian(z, data))
         precond = _whitening(hess)
         g_w = precond.T @ grad  # the gradient in whitened coordinates
         decrement = float(g_w @ g_w)
         polished = polish == polish_steps if polish_steps else decrement < CONVERGED_DECREMENT
         if decrement < NEWTON_DECREMENT or polished:
-            return z, decrement < CONVERGED_DECREMENT, step, hess
+            return z, decrement < CONVERGED_DECREMENT, step, (value, hess)
         direction = -(precond @ g_w)
         if decrement < CONVERGED_DECREMENT:  # quadratic regime: a full step
             trial = z + direction
-            v, g = (np.asarray(a) for a in program.value_and_grad(trial, data))
+            v, g, h = _at(program, trial, data)
             if not (np.isfinite(v) and np.all(np.isfinite(g))):
-                return z, True, step, hess
+                return z, True, step, (value, hess)
             polish += 1
-            z, value, grad = trial, v, g
+            z, value, grad, hess = trial, v, g, h
             continue
         t = min(1.0, MAX_STEP_SD / np.sqrt(decrement))
         while t > 1e-12:
             trial = z + t * direction
-            v, g = (np.asarray(a) for a in program.value_and_grad(trial, data))
+            v, g, h = _at(program, trial, data)
             if np.isfinite(v) and v <= value - 1e-4 * t * decrement:
                 break
             t *= 0.5
         else:  # no step decreases the potential: leave it to BFGS
             return z, False, step, None
-        z, value, grad = trial, v, g
+        z, value, grad, hess = trial, v, g, h
     return z, False, NEWTON_STEPS, None
+
+
+def _at(program: Program | Smooth, z: np.ndarray, data: ProgramData) -> tuple[float, np.ndarray, np.ndarray]:
+    """The potential's value, gradient and Hessian at ``z`` on the host (one program: the Hessian at a
+    line search's trial point costs little more than its value and gradient, and an accepted trial,
+    the usual case, needs it for the next step)."""
+    value, grad, hess = program.derivatives(z, data)
+    return float(value), np.asarray(grad), np.asarray(hess)
 
 
 def _whitening(hess, xp=np):
@@ -201,8 +209,8 @@ def _batched_map(program: Program, rounds: int):
         return program.potential(z_c + precond @ w, data)
 
     def newton_decrement(z, data):
-        hess = program.hessian(z, data)
-        step = _whitening(hess, jnp).T @ program.value_and_grad(z, data)[1]
+        _, grad, hess = program.derivatives(z, data)
+        step = _whitening(hess, jnp).T @ grad
         return step @ step, hess
 
     def one(z, data):
@@ -232,10 +240,12 @@ def laplace(
 ) -> LaplaceResult:
     """Mode and Gaussian covariance (inverse Hessian) of the posterior, searched from ``z0``
     (``polish``: see :func:`find_map`)."""
-    z_map, converged, steps, hess = _search(program, data, program.z0 if z0 is None else z0, 4, polish)
-    if hess is None:
-        hess = np.asarray(program.hessian(z_map, data))
-    return _gaussian_at(program, data, z_map, converged, steps, hess)
+    z_map, converged, steps, at = _search(program, data, program.z0 if z0 is None else z0, 4, polish)
+    if at is None:
+        value, _, hess = _at(program, np.asarray(z_map), data)
+    else:
+        value, hess = at
+    return _gaussian_at(value, z_map, converged, steps, hess)
 
 
 @computes
@@ -258,14 +268,14 @@ def laplace_many(
         z, hess, grad_step, steps = (
             np.asarray(a) for a in run(jnp.stack([jnp.asarray(starts[i]) for i in padded]), stacked)
         )
-        out += [
-            _gaussian_at(program, datas[i], z[k], bool(grad_step[k] < 1e-8), int(steps[k]), hess[k])
-            for k, i in enumerate(idx)
-        ]
+        for k, i in enumerate(idx):
+            value = float(program.value_and_grad(z[k], datas[i])[0])
+            out.append(_gaussian_at(value, z[k], bool(grad_step[k] < 1e-8), int(steps[k]), hess[k]))
     return out
 
 
-def _gaussian_at(program: Program, data: ProgramData, z_map, converged: bool, steps: int, hess: np.ndarray):
+def _gaussian_at(value: float, z_map, converged: bool, steps: int, hess: np.ndarray) -> LaplaceResult:
+    """The Gaussian with precision ``hess`` at ``z_map``, where the potential is ``value``."""
     hess = 0.5 * (hess + hess.T)
     try:
         chol = np.linalg.cholesky(hess)
@@ -278,7 +288,7 @@ def _gaussian_at(program: Program, data: ProgramData, z_map, converged: bool, st
     return LaplaceResult(
         mode=np.asarray(z_map),
         cov=cov,
-        potential=float(program.value_and_grad(z_map, data)[0]),
+        potential=float(value),
         converged=converged,
         steps=steps,
         positive_definite=pd,
@@ -348,8 +358,8 @@ def integrated_draws(
         z = start + slope * (theta - start[index])
         z[index] = theta
         for step in range(newton_steps + 1):  # the value, gradient and Hessian at the point it stops at
-            value, grad = program.value_and_grad(jnp.asarray(z), data)
-            hess_r = np.asarray(program.hessian(jnp.asarray(z), data))[np.ix_(rest, rest)]
+            value, grad, hess = _at(program, z, data)
+            hess_r = hess[np.ix_(rest, rest)]
             if step == newton_steps:
                 break
             delta = np.linalg.solve(0.5 * (hess_r + hess_r.T), np.asarray(grad)[rest])

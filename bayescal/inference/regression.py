@@ -26,7 +26,7 @@ import numpy as np
 from bayescal._config import computes
 from bayescal.inference.nls import nonlinear_lsq
 from bayescal.inference.nuts import run_nuts
-from bayescal.inference.program import Program
+from bayescal.inference.program import Program, derivatives_of
 from bayescal.model.spec import InferenceSpec
 
 __all__ = ["RegressionPosterior", "regression_posterior", "linear_model"]
@@ -79,8 +79,7 @@ def _program(model: Callable, p: int) -> Program:
         z0=np.zeros(p),
         unravel=lambda z: {"beta": z},
         potential=computes(jax.jit(potential)),
-        value_and_grad=computes(jax.jit(jax.value_and_grad(potential))),
-        hessian=computes(jax.jit(jax.hessian(potential))),
+        derivatives=computes(jax.jit(derivatives_of(potential))),
         constrain=computes(jax.jit(jax.vmap(lambda z, data: {"beta": z}, in_axes=(0, None)))),
         unconstrain=computes(jax.jit(lambda values, data: values["beta"])),
         loglik=computes(jax.jit(jax.vmap(loglik, in_axes=(0, None)))),
