@@ -16,6 +16,7 @@ from __future__ import annotations
 import functools
 from collections import OrderedDict
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol
 
@@ -339,6 +340,9 @@ def _latent_shapes(latent_unconstrained: Callable, example, disk: str | None) ->
     return shapes
 
 
+#: blocks of draws evaluated at once (:func:`_in_blocks`)
+_THREADS = 2
+
 #: rows of a batch of draws evaluated per call: every batch size (one start, 200 refit draws, 4000
 #: posterior draws) runs the one program compiled for this size
 BLOCK = 500
@@ -358,20 +362,28 @@ def _constrain(batched: Callable) -> Callable:
 
 
 def _in_blocks(batched: Callable) -> Callable:
-    """``batched(z_batch, data, *rest)`` over blocks of :data:`BLOCK` rows (the last padded), the results joined."""
+    """``batched(z_batch, data, *rest)`` over blocks of :data:`BLOCK` rows (the last padded), the results joined.
+
+    Two blocks run at once, each in its own thread (a compiled program runs without the GIL): the
+    4000 draws of a seed-000 fit's posterior with their log-likelihood took 0.10 s against 0.14 s one
+    block after another on two cores, with the same numbers (each block is the same program on the
+    same rows).
+    """
+
+    def one(z_batch, first, data, rest):
+        block = z_batch[first : first + BLOCK]
+        rows = block.shape[0]
+        if rows < BLOCK:
+            block = np.concatenate([block, np.repeat(block[-1:], BLOCK - rows, axis=0)])
+        return jax.tree.map(lambda a: np.asarray(a)[:rows], batched(block, data, *rest))
 
     def run(z_batch, data, *rest):
         z_batch = np.asarray(z_batch)
-        n = z_batch.shape[0]
-        parts = []
-        for first in range(0, n, BLOCK):
-            block = z_batch[first : first + BLOCK]
-            rows = block.shape[0]
-            if rows < BLOCK:
-                block = np.concatenate([block, np.repeat(block[-1:], BLOCK - rows, axis=0)])
-            parts.append(jax.tree.map(lambda a, r=rows: np.asarray(a)[:r], batched(block, data, *rest)))
-        if len(parts) == 1:
-            return parts[0]
+        firsts = range(0, z_batch.shape[0], BLOCK)
+        if len(firsts) == 1:
+            return one(z_batch, 0, data, rest)
+        with ThreadPoolExecutor(_THREADS) as pool:
+            parts = list(pool.map(lambda first: one(z_batch, first, data, rest), firsts))
         return jax.tree.map(lambda *a: np.concatenate(a), *parts)
 
     return run
