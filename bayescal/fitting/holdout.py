@@ -31,11 +31,10 @@ its label than its tolerance allows; that is the check's intent.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 import pandas as pd
 
+from bayescal._parallel import pairwise_map
 from bayescal.inference.laplace import laplace, laplace_draws
 
 __all__ = ["holdout_groups", "holdout_checks"]
@@ -110,9 +109,7 @@ def holdout_checks(
         mask = group[3]
         return laplace(program, data._replace(keep=np.asarray(data.keep) & ~mask), mode, polish=False)
 
-    # the refits are independent: two at once, each in its own thread (their programs run without the GIL)
-    with ThreadPoolExecutor(2) as pool:
-        results = list(pool.map(refit, groups))
+    results = pairwise_map(refit, groups)  # independent refits, two at once
     refits, failed = [], {}  # each group refitted: (kind, name, rows, draws); failed groups by position
     for (position, kind, name, _, idx), result in zip(groups, results, strict=True):
         if not (result.positive_definite and result.converged):

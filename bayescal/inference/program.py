@@ -16,7 +16,6 @@ from __future__ import annotations
 import functools
 from collections import OrderedDict
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol
 
@@ -29,6 +28,7 @@ from numpyro.distributions.transforms import biject_to
 from numpyro.infer.util import potential_energy, unconstrain_fn
 
 from bayescal._config import computes
+from bayescal._parallel import pairwise_map
 from bayescal.inference.persist import TRACING, dtype_of, load_json, persisted, save_json, structure_key
 from bayescal.model.assemble import CalibrationModel
 
@@ -340,9 +340,6 @@ def _latent_shapes(latent_unconstrained: Callable, example, disk: str | None) ->
     return shapes
 
 
-#: blocks of draws evaluated at once (:func:`_in_blocks`)
-_THREADS = 2
-
 #: rows of a batch of draws evaluated per call: every batch size (one start, 200 refit draws, 4000
 #: posterior draws) runs the one program compiled for this size
 BLOCK = 500
@@ -364,10 +361,9 @@ def _constrain(batched: Callable) -> Callable:
 def _in_blocks(batched: Callable) -> Callable:
     """``batched(z_batch, data, *rest)`` over blocks of :data:`BLOCK` rows (the last padded), the results joined.
 
-    Two blocks run at once, each in its own thread (a compiled program runs without the GIL): the
-    4000 draws of a seed-000 fit's posterior with their log-likelihood took 0.10 s against 0.14 s one
-    block after another on two cores, with the same numbers (each block is the same program on the
-    same rows).
+    Two blocks run at once (:func:`~bayescal._parallel.pairwise_map`): the 4000 draws of a seed-000
+    fit's posterior with their log-likelihood took 0.10 s against 0.14 s one block after another on
+    two cores, with the same numbers (each block is the same program on the same rows).
     """
 
     def one(z_batch, first, data, rest):
@@ -380,10 +376,9 @@ def _in_blocks(batched: Callable) -> Callable:
     def run(z_batch, data, *rest):
         z_batch = np.asarray(z_batch)
         firsts = range(0, z_batch.shape[0], BLOCK)
-        if len(firsts) == 1:
-            return one(z_batch, 0, data, rest)
-        with ThreadPoolExecutor(_THREADS) as pool:
-            parts = list(pool.map(lambda first: one(z_batch, first, data, rest), firsts))
+        parts = pairwise_map(lambda first: one(z_batch, first, data, rest), firsts)
+        if len(parts) == 1:
+            return parts[0]
         return jax.tree.map(lambda *a: np.concatenate(a), *parts)
 
     return run
