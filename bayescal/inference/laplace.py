@@ -198,38 +198,58 @@ def _whitened_bfgs():
 
 
 @lru_cache(maxsize=16)
-def _batched_map(program: Program, rounds: int):
-    """Jitted, vmapped MAP search: ``(z0 (B, d), data (B, ...)) -> (z, hessian, newton_step^2, steps)``."""
-    import optimistix as optx
+def _batched_newton(program: Program):
+    """Jitted, vmapped Newton search of :func:`find_map`: ``(z0 (B, d), data (B, ...)) -> (z, value, Hessian,
+    squared Newton decrement, steps)``.
 
-    solver: Any = optx.BFGS(rtol=1e-12, atol=1e-12)
+    The steps of :func:`_newton` (saddle-free, whitened by the Hessian, at most :data:`MAX_STEP_SD` long,
+    backtracked on the potential's value alone, full steps once the decrement is below
+    :data:`CONVERGED_DECREMENT`, :data:`POLISH_STEPS` of them), as one loop over the batch: a dataset that
+    has stopped is held where it is while the others go on.  A search that stalls (no step lowers the
+    potential) stops unconverged; :func:`laplace_many` searches it again one by one.
+    """
 
-    def whitened(w, args):
-        z_c, precond, data = args
-        return program.potential(z_c + precond @ w, data)
-
-    def newton_decrement(z, data):
-        _, grad, hess = program.derivatives(z, data)
-        step = _whitening(hess, jnp).T @ grad
-        return step @ step, hess
+    def whiten(hess, grad):
+        precond = _whitening(hess, jnp)
+        g_w = precond.T @ grad
+        return precond, g_w @ g_w
 
     def one(z, data):
-        def round_(carry):
-            z, steps, k, _ = carry
-            precond = _whitening(program.hessian(z, data), jnp)
-            sol: Any = optx.minimise(
-                whitened, solver, jnp.zeros_like(z), args=(z, precond, data), max_steps=500, throw=False
-            )
-            z = z + precond @ sol.value
-            return z, steps + sol.stats["num_steps"], k + 1, newton_decrement(z, data)[0]
+        value, grad, hess = program.derivatives(z, data)
+        precond, decrement = whiten(hess, grad)
 
-        def more(carry):
-            return (carry[2] < rounds) & (carry[3] >= 1e-8)
+        def going(c):
+            z, value, grad, hess, precond, decrement, steps, polish, stuck = c
+            finite = jnp.isfinite(value) & jnp.all(jnp.isfinite(grad))
+            return finite & ~stuck & (decrement >= NEWTON_DECREMENT) & (polish < POLISH_STEPS) & (steps < NEWTON_STEPS)
 
-        # under vmap the loop runs until every dataset has converged; finished ones are held fixed
-        z, steps, _, _ = jax.lax.while_loop(more, round_, (z, 0, 0, jnp.inf))
-        decrement, hess = newton_decrement(z, data)
-        return z, hess, decrement, steps
+        def step(c):
+            z, value, grad, hess, precond, decrement, steps, polish, _ = c
+            direction = -(precond @ (precond.T @ grad))
+            quadratic = decrement < CONVERGED_DECREMENT
+            t0 = jnp.where(quadratic, 1.0, jnp.minimum(1.0, MAX_STEP_SD / jnp.sqrt(decrement)))
+
+            def shorter(s):
+                return ~s[1] & (s[0] > 1e-12)
+
+            def halve(s):
+                t = s[0]
+                v = program.potential(z + t * direction, data)
+                ok = jnp.isfinite(v) & (quadratic | (v <= value - 1e-4 * t * decrement))
+                return jnp.where(ok, t, 0.5 * t), ok
+
+            t, ok = jax.lax.while_loop(shorter, halve, (t0, jnp.asarray(False)))
+            trial = z + t * direction
+            v, g, h = program.derivatives(trial, data)
+            moved = ok & jnp.isfinite(v) & jnp.all(jnp.isfinite(g))
+            z, value = jnp.where(moved, trial, z), jnp.where(moved, v, value)
+            grad, hess = jnp.where(moved, g, grad), jnp.where(moved, h, hess)
+            precond, decrement = whiten(hess, grad)
+            return z, value, grad, hess, precond, decrement, steps + 1, polish + quadratic, ~moved
+
+        start = (z, value, grad, hess, precond, decrement, 0, 0, jnp.asarray(False))
+        z, value, _, hess, _, decrement, steps, _, _ = jax.lax.while_loop(going, step, start)
+        return z, value, hess, decrement, steps
 
     return jax.jit(jax.vmap(one))
 
@@ -250,27 +270,29 @@ def laplace(
 
 @computes
 def laplace_many(
-    program: Program, datas: list[ProgramData], starts: list[jax.Array], rounds: int = 4, chunk: int = 16
+    program: Program, datas: list[ProgramData], starts: list[jax.Array], chunk: int = 16
 ) -> list[LaplaceResult]:
     """:func:`laplace` for many datasets of one structure, vectorised with ``jax.vmap``.
 
-    The datasets are stacked along a leading axis and the whole search (the
-    Hessian-whitened BFGS rounds of :func:`find_map`, a fixed ``rounds`` of
-    them) runs as one compiled program over batches of ``chunk`` datasets
-    (the last one padded), compiled once per structure.
+    The datasets are stacked along a leading axis and the Newton search of :func:`find_map` runs as
+    one compiled program over batches of ``chunk`` datasets (the last one padded), compiled once per
+    structure (:func:`_batched_newton`).  A dataset whose search stalls there is searched again by
+    :func:`laplace`, whose BFGS rounds take over where Newton stalls.
     """
-    run = _batched_map(program, rounds)
+    run = _batched_newton(program)
     out: list[LaplaceResult] = []
     for first in range(0, len(datas), chunk):
         idx = list(range(first, min(first + chunk, len(datas))))
         padded = idx + [idx[-1]] * (chunk - len(idx))  # one batch size: one compilation
         stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *(datas[i] for i in padded))
-        z, hess, grad_step, steps = (
+        z, value, hess, decrement, steps = (
             np.asarray(a) for a in run(jnp.stack([jnp.asarray(starts[i]) for i in padded]), stacked)
         )
         for k, i in enumerate(idx):
-            value = float(program.value_and_grad(z[k], datas[i])[0])
-            out.append(_gaussian_at(value, z[k], bool(grad_step[k] < 1e-8), int(steps[k]), hess[k]))
+            if decrement[k] < CONVERGED_DECREMENT:
+                out.append(_gaussian_at(float(value[k]), z[k], True, int(steps[k]), hess[k]))
+            else:
+                out.append(laplace(program, datas[i], starts[i]))
     return out
 
 

@@ -47,7 +47,7 @@ def test_vectorised_map_matches_one_by_one(seed000, tables):
     for a, b in zip(one.modes, vec.modes, strict=True):
         assert a.converged and b.converged
         sd = np.sqrt(np.diag(a.cov))
-        assert np.max(np.abs(a.mode - b.mode) / sd) < 1e-4
+        assert np.max(np.abs(a.mode - b.mode) / sd) < 1e-8  # the same Newton steps, batched
 
 
 @pytest.mark.filterwarnings("ignore::bayescal.FitFailedWarning")  # 2 x 300 draws: R-hat may reach 1.015
