@@ -256,9 +256,10 @@ def fit_models(
 
     ``vectorize`` runs the MAP searches as one vmapped program, the same Newton
     steps batched (default: on an accelerator only; on a 2-core CPU 32 seed-000
-    datasets took 1.09 s vectorised against 1.05 s one by one, since each search
+    datasets took 1.10 s vectorised against 1.08 s one by one, since each search
     is already a few milliseconds of small, latency-bound operations, and the
-    batched program costs 8.5 s to compile).
+    batched program's first search, compiling it, 10.4 s;
+    ``benchmarks/results/batched_map.md``).
     """
     if vectorize is None:
         vectorize = jax.default_backend() != "cpu"
