@@ -17,8 +17,9 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
+
+from baseline_tree import baseline_tree, short_commit  # run as a script: its folder is on the path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -79,16 +80,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", default="batched_map", help="results stem under benchmarks/results")
     args = parser.parse_args()
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", args.baseline], cwd=ROOT, capture_output=True, text=True, check=True
-    ).stdout.strip()
-    with tempfile.TemporaryDirectory() as tmp:
-        base = Path(tmp) / "baseline"
-        subprocess.run(["git", "worktree", "add", "--detach", "-q", str(base), commit], cwd=ROOT, check=True)
-        try:
-            rows = {name: run(tree, args.datasets, args.repeats) for name, tree in (("this", ROOT), ("baseline", base))}
-        finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(base)], cwd=ROOT, check=True)
+    commit = short_commit(args.baseline)
+    with baseline_tree(commit) as base:
+        rows = {name: run(tree, args.datasets, args.repeats) for name, tree in (("this", ROOT), ("baseline", base))}
     (RESULTS / f"{args.out}.json").write_text(json.dumps({"baseline": commit, **rows}, indent=2) + "\n")
     lines = [
         f"MAP searches of {args.datasets} seed-000 datasets (one structure), medians of {args.repeats}, compilation "

@@ -26,6 +26,7 @@ import tempfile
 from pathlib import Path
 
 import pandas as pd
+from baseline_tree import baseline_tree  # run as a script: its folder is on the path
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
@@ -97,19 +98,12 @@ def main() -> None:
     ap.add_argument("--out", default=None, help="results stem (default diagnosis_speed, _cold with --cold)")
     args = ap.parse_args()
     args.out = args.out or str(RESULTS / ("diagnosis_speed_cold" if args.cold else "diagnosis_speed"))
-    with tempfile.TemporaryDirectory() as tmp:
-        base = Path(tmp) / "baseline"
-        subprocess.run(
-            ["git", "-C", str(ROOT), "worktree", "add", "-q", "--detach", str(base), args.baseline], check=True
-        )
-        try:
-            rows = []
-            for name, tree in (("baseline", base), ("now", ROOT)):
-                for _ in range(args.passes):
-                    kept = run_tree(tree, args.seeds, args.cold)
-                rows += [dict(r, tree=name) for r in kept]
-        finally:
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(base)], check=False)
+    with baseline_tree(args.baseline) as base:
+        rows = []
+        for name, tree in (("baseline", base), ("now", ROOT)):
+            for _ in range(args.passes):
+                kept = run_tree(tree, args.seeds, args.cold)
+            rows += [dict(r, tree=name) for r in kept]
     df = pd.DataFrame(rows)
     df["verdict_key"] = df[["verdict", "adopted", "doubt", "covered"]].astype(str).agg("|".join, axis=1)
     df.drop(columns="verdict_key").to_csv(f"{args.out}.csv", index=False)

@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from baseline_tree import baseline_tree, short_commit  # run as a script: its folder is on the path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -124,18 +125,11 @@ def main() -> None:
     parser.add_argument("--fresh", type=int, default=3, help="fresh-command runs per tree (0: none)")
     parser.add_argument("--out", default="fit_stages", help="results stem under benchmarks/results")
     args = parser.parse_args()
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", args.baseline], cwd=ROOT, capture_output=True, text=True, check=True
-    ).stdout.strip()
-    with tempfile.TemporaryDirectory() as tmp:
-        base = Path(tmp) / "baseline"
-        subprocess.run(["git", "worktree", "add", "--detach", "-q", str(base), commit], cwd=ROOT, check=True)
-        try:
-            trees = {"this": ROOT, "baseline": base}
-            rows = {b: measure(trees, b, args.repeats) for b in args.backends.split(",") if b}
-            fresh = fresh_command(trees, args.fresh, Path(tmp)) if args.fresh else {}
-        finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(base)], cwd=ROOT, check=True)
+    commit = short_commit(args.baseline)
+    with baseline_tree(commit) as base, tempfile.TemporaryDirectory() as tmp:
+        trees = {"this": ROOT, "baseline": base}
+        rows = {b: measure(trees, b, args.repeats) for b in args.backends.split(",") if b}
+        fresh = fresh_command(trees, args.fresh, Path(tmp)) if args.fresh else {}
     write(rows, fresh, commit, args.repeats, args.out)
 
 
