@@ -103,10 +103,10 @@ def holdout_checks(
         (position, kind, name, mask, np.flatnonzero(mask & ~censored))
         for position, (kind, name, mask) in enumerate(holdout_groups(frame, lit, darks=not model.spec.dark.drift))
     ]
-    groups = [g for g in groups if g[-1].size]
+    groups = [(position, kind, name, mask, idx) for position, kind, name, mask, idx in groups if idx.size]
 
     def refit(group):
-        mask = group[3]
+        _, _, _, mask, _ = group
         return laplace(program, data._replace(keep=np.asarray(data.keep) & ~mask), mode, polish=False)
 
     results = pairwise_map(refit, groups)  # independent refits, two at once
