@@ -357,15 +357,11 @@ def unit_log_likelihood(plan: Plan, data: FleetData, theta_observed: np.ndarray,
 
 def _convergence(values: dict[str, np.ndarray]) -> dict:
     """Largest R-hat and smallest bulk and tail ESS over ``(chain, draw, ...)`` arrays (the numbers
-    of :func:`bayescal.inference.diagnostics.mcmc_diagnostics`; R-hat is NaN for one chain)."""
-    import xarray as xr
+    of :func:`bayescal.inference.diagnostics.convergence`; R-hat is NaN for one chain)."""
+    from bayescal.inference.diagnostics import convergence
 
-    from bayescal.inference.diagnostics import mcmc_diagnostics
-    from bayescal.model.spec import InferenceSpec
-
-    ds = xr.Dataset({k: (("chain", "draw", f"{k}_i"), v.reshape(v.shape[:2] + (-1,))) for k, v in values.items()})
-    d = mcmc_diagnostics(ds, 0, InferenceSpec())
-    return {"max_rhat": d.max_rhat, "min_ess_bulk": d.min_ess_bulk, "min_ess_tail": d.min_ess_tail}
+    rhat, bulk, tail = convergence(values)
+    return {"max_rhat": rhat, "min_ess_bulk": bulk, "min_ess_tail": tail}
 
 
 def _mixed(d: dict, inference: InferenceSpec) -> bool:

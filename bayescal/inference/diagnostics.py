@@ -7,14 +7,14 @@ quantity.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-import xarray as xr
 
 from bayescal.model.spec import InferenceSpec
 
-__all__ = ["Diagnostics", "mcmc_diagnostics"]
+__all__ = ["Diagnostics", "convergence", "mcmc_diagnostics"]
 
 
 @dataclass(frozen=True)
@@ -55,15 +55,12 @@ class Diagnostics:
         }
 
 
-def mcmc_diagnostics(posterior: xr.Dataset, divergences: int, settings: InferenceSpec, extra=None) -> Diagnostics:
-    """R-hat and ESS of every variable of ``posterior`` (dims chain, draw, ...)."""
-    import arviz_stats
-
-    varying = [v for v in posterior.data_vars if float(posterior[v].std()) > 0]
-    ds = posterior[varying]
-    rhat = _min_max(arviz_stats.rhat(ds), np.nanmax)
-    bulk = _min_max(arviz_stats.ess(ds, method="bulk"), np.nanmin)
-    tail = _min_max(arviz_stats.ess(ds, method="tail"), np.nanmin)
+def mcmc_diagnostics(
+    posterior: Mapping[str, np.ndarray], divergences: int, settings: InferenceSpec, extra=None
+) -> Diagnostics:
+    """R-hat and ESS of every variable of ``posterior`` (arrays ``(chain, draw, ...)``), judged against
+    ``settings``."""
+    rhat, bulk, tail = convergence(posterior)
     problems = []
     if divergences:
         problems.append(f"{divergences} divergent transitions")
@@ -76,8 +73,34 @@ def mcmc_diagnostics(posterior: xr.Dataset, divergences: int, settings: Inferenc
     return Diagnostics(not problems, tuple(problems), divergences, rhat, bulk, tail, extra or {})
 
 
-def _min_max(ds, reducer) -> float:
-    """``reducer`` over every value of ``ds`` that is not NaN (NaN when none is: R-hat of one chain)."""
-    values = np.concatenate([np.asarray(ds[v]).ravel() for v in ds.data_vars] or [np.array([np.nan])])
+def convergence(posterior: Mapping[str, np.ndarray]) -> tuple[float, float, float]:
+    """The largest rank-normalised R-hat and the smallest bulk and tail ESS over every element of
+    ``posterior``'s arrays ``(chain, draw, ...)`` that varies (arviz-stats; NaN when none does, and
+    R-hat NaN for one chain).
+
+    The elements are stacked into one ``(element, chain, draw)`` array, so arviz-stats runs once per
+    statistic rather than once per variable and statistic.
+    """
+    from arviz_stats.base import array_stats
+    from arviz_stats.validate import validate_ci_prob
+
+    columns = [np.asarray(v) for v in posterior.values()]
+    if not columns:
+        return float("nan"), float("nan"), float("nan")
+    chains, draws = columns[0].shape[:2]
+    stacked = np.concatenate([c.reshape(chains, draws, -1) for c in columns], axis=2)
+    stacked = np.moveaxis(stacked[:, :, stacked.std(axis=(0, 1)) > 0], 2, 0)
+    if not stacked.size:
+        return float("nan"), float("nan"), float("nan")
+    rhat = array_stats.rhat(stacked, chain_axis=-2, draw_axis=-1)
+    bulk = array_stats.ess(stacked, chain_axis=-2, draw_axis=-1, method="bulk")
+    # the tail's quantiles as arviz-stats' own interface takes them (its ``stats.ci_prob``)
+    tail = array_stats.ess(stacked, chain_axis=-2, draw_axis=-1, method="tail", prob=validate_ci_prob(None))
+    return _nan_reduce(rhat, np.nanmax), _nan_reduce(bulk, np.nanmin), _nan_reduce(tail, np.nanmin)
+
+
+def _nan_reduce(values: np.ndarray, reducer) -> float:
+    """``reducer`` over the values that are not NaN (NaN when none is: R-hat of one chain)."""
+    values = np.asarray(values).ravel()
     values = values[~np.isnan(values)]
     return float(reducer(values)) if values.size else float("nan")

@@ -11,7 +11,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import xarray as xr
 
 from bayescal.inference.diagnostics import Diagnostics, mcmc_diagnostics
 from bayescal.inference.emcee_backend import run_emcee
@@ -121,15 +120,13 @@ def nuts_stats(out) -> dict:
     }
 
 
-def chains_dataset(posterior: Mapping[str, np.ndarray]) -> xr.Dataset:
+def chains_dataset(posterior: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Physical draws ``(chain, draw, ...)`` for R-hat and ESS; the reference constants left out."""
-    return xr.Dataset(
-        {
-            k: (("chain", "draw") + tuple(f"{k}_{i}" for i in range(v.ndim - 2)), v)
-            for k, v in posterior.items()
-            if k != "sphere_scale" and not k.startswith("setting_factor_")  # constants at the reference
-        }
-    )
+    return {
+        k: v
+        for k, v in posterior.items()
+        if k != "sphere_scale" and not k.startswith("setting_factor_")  # constants at the reference
+    }
 
 
 @dataclass(frozen=True)

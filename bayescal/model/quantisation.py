@@ -31,7 +31,7 @@ def pixel_rounded_variance(mu, sigma, xp=np, reach: int | None = None):
         mu, sigma = np.broadcast_arrays(np.asarray(mu, float), np.asarray(sigma, float))
         cdf = ndtr
     else:
-        from jax.scipy.special import ndtr as cdf
+        from bayescal.model.normal import ndtr as cdf
     if reach is None:
         reach = int(np.ceil(8.0 * max(float(np.max(sigma, initial=0.0)), 0.1))) + 1
     frac = mu - xp.floor(mu)

@@ -11,8 +11,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 import jax.scipy.stats.norm as jnorm
 import numpyro.distributions as dist
-from jax.scipy.special import log_ndtr
 from numpyro.distributions import constraints
+
+from bayescal.model.normal import log_ndtr
 
 __all__ = ["CensoredNormal", "ClipWindowNormal"]
 
@@ -40,7 +41,7 @@ class CensoredNormal(dist.Distribution):
     def log_prob(self, value):
         """log pdf for observed rows, ``log P(Y >= threshold)`` for censored rows."""
         log_pdf = jnorm.logpdf(value, self.loc, self.scale)
-        log_sf = jnorm.logcdf((self.loc - self.threshold) / self.scale)
+        log_sf = log_ndtr((self.loc - self.threshold) / self.scale)
         return jnp.where(self.censored, log_sf, log_pdf)
 
 
@@ -99,5 +100,5 @@ class ClipWindowNormal(dist.Distribution):
         window = _log_ndtr_diff(a, b) - jnp.log(w_safe)
         normal = jnorm.logpdf(value, self.mean, self.scale)
         log_obs = jnp.where(narrow, normal, window)
-        log_sf = jnorm.logcdf((self.mean - self.threshold) / self.sd)
+        log_sf = log_ndtr((self.mean - self.threshold) / self.sd)
         return jnp.where(self.censored, log_sf, log_obs)

@@ -86,7 +86,7 @@ class Saturation(Component):
         if xp is np:
             from scipy.special import ndtr
         else:
-            from jax.scipy.special import ndtr
+            from bayescal.model.normal import ndtr
         a = (full_scale - mu) / sigma
         return mu + sigma * (a * ndtr(-a) - xp.exp(-0.5 * a * a) / math.sqrt(2.0 * math.pi))
 
@@ -96,7 +96,7 @@ class Saturation(Component):
         if xp is np:
             from scipy.special import ndtr
         else:
-            from jax.scipy.special import ndtr
+            from bayescal.model.normal import ndtr
         return ndtr((full_scale - mu) / sigma)
 
     @staticmethod
