@@ -10,14 +10,14 @@ follow without cancellation (measured on the seed-000 model: its derivatives pro
 about 2.6 s instead of 3.1 s, and runs in 1.0 ms instead of 1.15 ms):
 
 - ``Phi(x) = t`` for ``x < 0`` and ``1 - t`` for ``x >= 0``, where ``t = erfc(|x| / sqrt 2) / 2``
-  is ``Phi(-|x|)``, computed to full relative precision by ``erfc`` (Abramowitz & Stegun 7.1.2,
-  26.2.29);
+  is ``Phi(-|x|)``, computed to full relative precision by ``erfc`` (Abramowitz & Stegun, chapters 7
+  and 26);
 - ``log Phi(x) = log t`` for ``x < 0`` and ``log1p(-t)`` for ``x >= 0``; below :data:`LOWER`, where
-  ``t`` nears the smallest double, the asymptotic series of the Mills ratio (A&S 26.2.12) to
+  ``t`` nears the smallest double, the asymptotic series of the Mills ratio (A&S chapter 26) to
   :data:`SERIES_TERMS` terms, whose first omitted term there is below 1e-14.
 
 Stacking a likelihood's arguments into one call (one expansion) shrinks the program further but, on
-that model, made its Hessian run 1.6 times slower; each argument keeps its own call.
+that model, made its Hessian run 1.5-2 times slower; each argument keeps its own call.
 """
 
 from __future__ import annotations
