@@ -276,8 +276,8 @@ def laplace_many(
 
     The datasets are stacked along a leading axis and the Newton search of :func:`find_map` runs as
     one compiled program over batches of ``chunk`` datasets (the last one padded), compiled once per
-    structure (:func:`_batched_newton`).  A dataset whose search stalls there is searched again by
-    :func:`laplace`, whose BFGS rounds take over where Newton stalls.
+    structure (:func:`_batched_newton`).  A dataset whose search stalls there is searched on by
+    :func:`laplace` from the point it reached, where BFGS rounds take over from Newton.
     """
     run = _batched_newton(program)
     out: list[LaplaceResult] = []
@@ -291,8 +291,8 @@ def laplace_many(
         for k, i in enumerate(idx):
             if decrement[k] < CONVERGED_DECREMENT:
                 out.append(_gaussian_at(float(value[k]), z[k], True, int(steps[k]), hess[k]))
-            else:
-                out.append(laplace(program, datas[i], starts[i]))
+            else:  # from where the batched Newton steps stalled, not their start again
+                out.append(laplace(program, datas[i], z[k]))
     return out
 
 

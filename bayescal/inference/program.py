@@ -114,10 +114,10 @@ def derivatives_of(potential: Callable, value_and_grad: Callable | None = None) 
     ``jax.hessian(potential)`` on a camera's model), and the value and gradient come from the same
     run.  One program where a value-and-gradient program beside a Hessian program cost a camera's
     model 2.0 s more to compile and 0.16-0.24 s more to load in a new process; the numbers agree with
-    the two programs' to rounding (a seed-000 Laplace fit's draws within 1e-11); a call costs 1.3-1.6 ms
-    against 0.5 ms for the value and gradient alone, and a Newton step, which needs all three, makes
-    one call instead of two.  ``value_and_grad``: the jitted value and gradient of ``potential`` to
-    differentiate, where the caller has one.
+    the two programs' to rounding (a seed-000 Laplace fit's draws within 1e-11); on that model a call
+    costs about 1.0 ms against 0.15-0.2 ms for the value and gradient alone, and a Newton step, which
+    needs all three, makes one call instead of two.  ``value_and_grad``: the jitted value and gradient
+    of ``potential`` to differentiate, where the caller has one.
     """
     if value_and_grad is None:
         value_and_grad = jax.jit(jax.value_and_grad(potential))

@@ -44,3 +44,40 @@ def test_integrated_draws_without_a_finite_mode_fall_back_flagged():
     assert z.shape == (40, 3) and "no finite mode" in info["failed"]
     problems = laplace_problems(result, {"integrated_scale_failed": info["failed"]})
     assert problems == ["the excess-scatter integration failed (no finite mode or scale); use nuts"]
+
+
+def test_a_stalled_batched_search_is_searched_on_from_where_it_stopped(monkeypatch, float64):
+    """``laplace_many``: a dataset the batched Newton steps leave unconverged (here: one step allowed)
+    is searched on by ``laplace`` from the point the batch reached, and lands on the mode the one-by-one
+    search finds (a Student-t line, three datasets)."""
+    import jax.numpy as jnp
+
+    from bayescal.inference import laplace as lp
+    from bayescal.inference.program import program_of
+    from tests.inference.test_persist import Line, line
+
+    rng = np.random.default_rng(4)
+    x = np.linspace(0.0, 1.0, 30)
+    datas = [Line(x, a + 2.0 * x + 0.3 * rng.standard_normal(30)) for a in (0.5, -1.0, 3.0)]
+    program = program_of(line, datas[0])
+    starts = [jnp.zeros(3)] * 3
+    serial = [lp.laplace(program, d, s) for d, s in zip(datas, starts, strict=True)]
+
+    searched_from = []
+    laplace = lp.laplace
+
+    def spy(program, data, z0=None, **kw):
+        searched_from.append(np.asarray(z0))
+        return laplace(program, data, z0, **kw)
+
+    monkeypatch.setattr(lp, "NEWTON_STEPS", 1)  # read when the batched program is traced
+    monkeypatch.setattr(lp, "laplace", spy)
+    lp._batched_newton.cache_clear()
+    try:
+        batched = lp.laplace_many(program, datas, starts)
+    finally:
+        lp._batched_newton.cache_clear()
+    assert len(searched_from) == 3 and all(np.any(z != 0.0) for z in searched_from)  # from the batch's point
+    for a, b in zip(serial, batched, strict=True):
+        assert a.converged and b.converged
+        assert np.max(np.abs(a.mode - b.mode) / np.sqrt(np.diag(a.cov))) < 1e-3
