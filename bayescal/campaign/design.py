@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -83,6 +83,18 @@ class CampaignDesign:
     #: ``after`` only: how often each grid group was measured already, and the protocol's next block
     measured: np.ndarray | None = None
     protocol_next: np.ndarray | None = None
+    #: targets whose goal lies below what any campaign of the grid reaches -> that floor (expected sd)
+    unreachable: dict[str, float] = field(default_factory=dict)
+    #: without a budget: the most rows the search considers, when the goals need that many or more
+    max_rows: int | None = None
+    #: what the design costs in rows (setting changes included), and the budget it was made for
+    cost_rows: float = 0.0
+    budget_rows: float | None = None
+
+    @property
+    def over_budget(self) -> bool:
+        """The design costs more than its budget (the rows the model's checks need, kept)."""
+        return self.budget_rows is not None and self.cost_rows > self.budget_rows + 1e-9
 
     def groups(self) -> pd.DataFrame:
         """The chosen groups, one row each: the setting, the level and how many times."""
@@ -127,6 +139,23 @@ class CampaignDesign:
                 "repeats and the noise scale the campaign must estimate cost the rest."
             )
         unmet = int((ratio > 1 + 1e-9).sum())
+        for name, floor in self.unreachable.items():
+            goal = float(w.loc[w["target"] == name, "goal_sd"].iloc[0])
+            lines.append(
+                f"UNREACHABLE: {name} cannot be narrowed to {goal:.4g}: no campaign of this grid takes it below "
+                f"{floor:.4g} (what the prior and the sphere's common scale leave); the design aims at "
+                f"{UNREACHABLE_AIM * floor:.4g}."
+            )
+        if self.over_budget:
+            lines.append(
+                f"OVER BUDGET: the design costs {self.cost_rows:g} rows, more than the budget of {self.budget_rows:g}: "
+                "the model's checks need these rows (--no-checks gives them up and stays within the budget)."
+            )
+        if self.max_rows is not None:
+            lines.append(
+                f"The goals need more than {self.max_rows} rows ({MAX_ROWS_PER_PROTOCOL} times the protocol's); the "
+                "search stopped there: widen the goals (--goal-scale) or give --budget-rows."
+            )
         if self.met:
             lines.append("Every target reaches its goal" + (" once the block is measured." if after else "."))
         elif after:
@@ -281,7 +310,14 @@ def design(
     measured = state.measured
     now_sd = lin.sd(measured)
     done = after is not None and bool(np.all(now_sd <= goal * (1 + 1e-9)))
-    say("choosing measurements")
+    # the widths no campaign of this grid goes below (every group that reads below full scale measured a
+    # million times): a goal under its floor is unreachable, whatever is measured (the prior, the sphere)
+    floor = lin.sd(measured + (lin.clipped < 0.5) * 1e6)
+    unreachable = {n: float(f) for n, f, g in zip(lin.names, floor, goal, strict=True) if not g > f * (1 + 1e-6)}
+    say(
+        "choosing measurements"
+        + (f" ({len(unreachable)} goal(s) below what any campaign reaches)" if unreachable else "")
+    )
     budget = budget_rows
     if after is not None:
         nxt = _protocol_next(grid, protocol, measured)
@@ -290,20 +326,31 @@ def design(
     counts = np.zeros(len(grid), dtype=int)
     # the search works at the noise scale of the points; the goals are widths with the scale integrated
     # (Linearisation.sd), so each round tightens the search's goals by what integrating added
-    search_goal = goal * lin.at_scale().sd(protocol_counts) / protocol_sd
+    aim = np.where(goal > floor * (1 + 1e-6), goal, UNREACHABLE_AIM * floor)  # an unreachable goal: near its floor
+    search_goal = aim * lin.at_scale().sd(protocol_counts) / protocol_sd
+    n_ch = len(grid.channels)
+    max_rows = max(MAX_ROWS_PER_PROTOCOL * int(protocol_counts.sum()) * n_ch, MIN_MAX_ROWS)
     for _ in range(0 if done else 4):
         counts, bound = _choose(
-            lin, grid, search_goal, protocol_counts, state.spec, budget, setting_cost, keep_checks, base=measured
+            lin,
+            grid,
+            search_goal,
+            protocol_counts,
+            state.spec,
+            budget,
+            setting_cost,
+            keep_checks,
+            base=measured,
+            max_rows=max_rows,
         )
         sd = lin.sd(measured + counts)
         if budget is not None or np.all(sd <= goal * (1 + 1e-9)):
             break
         search_goal = search_goal * np.minimum(1.0, goal / sd)
     sd = lin.sd(measured + counts)
-    columns = {"target": lin.names, "goal_sd": goal, "design_sd": sd, "protocol_sd": protocol_sd}
+    columns = {"target": lin.names, "goal_sd": goal, "design_sd": sd, "protocol_sd": protocol_sd, "floor_sd": floor}
     if after is not None:
         columns |= {"now_sd": now_sd, "protocol_next_sd": lin.sd(measured + nxt)}
-    n_ch = len(grid.channels)
     left = np.maximum(protocol_counts - measured, 0)
     return CampaignDesign(
         design=grid.design(counts),
@@ -319,6 +366,10 @@ def design(
         bound_rows=bound if budget is None else None,
         measured=None if after is None else measured,
         protocol_next=None if after is None else nxt,
+        unreachable=unreachable,
+        max_rows=max_rows if budget is None and int(counts.sum()) * n_ch >= max_rows else None,
+        cost_rows=cost_of(counts, Costs(n_ch, setting_cost), [g.setting for g in grid.groups]),
+        budget_rows=budget,
     )
 
 
@@ -518,6 +569,14 @@ def _points(state: _State, draws: int, seed: int) -> np.ndarray:
     return np.concatenate([state.centre[None], z[: draws - 1]])
 
 
+#: a goal below its floor is aimed at this multiple of the floor
+UNREACHABLE_AIM = 1.05
+#: without a budget, the search considers designs of at most this many times the protocol's rows ...
+MAX_ROWS_PER_PROTOCOL = 20
+#: ... and at least this many rows
+MIN_MAX_ROWS = 2000
+
+
 def _choose(
     lin: Linearisation,
     grid: Grid,
@@ -528,6 +587,7 @@ def _choose(
     setting_cost: float,
     keep_checks: bool,
     base: np.ndarray | None = None,
+    max_rows: float = np.inf,
 ) -> tuple[np.ndarray, float]:
     """The groups to measure beyond ``base`` (those measured already): the continuous optimum
     (:func:`~bayescal.campaign.search.relaxed`) rounded up (to meet goals) or down (within a budget), groups
@@ -549,10 +609,17 @@ def _choose(
         return cost_of(counts, costs, settings) - paid
 
     w = relaxed(lin, base, goal, costs.of(settings, set()), eligible, None if meet else budget)
+    bound = float(w.sum() * costs.rows_per_group)
+    if meet and bound > max_rows:  # goals out of reach: the continuous design cut down to the most rows considered
+        counts = base + np.floor(w * max_rows / bound).astype(int)
+        for mask in model_checks.missing(grid.groups, counts, order, protocol_counts) if keep_checks else []:
+            counts, _ = greedy(lin, counts, goal, costs, settings, eligible=eligible & mask, meet=False, steps=1)
+        return counts - base, bound
     counts = base + (np.ceil(w - 0.02) if meet else np.floor(w)).astype(int)
+    cap = min(budget, max_rows)
     for _ in range(8):
         counts, _ = greedy(
-            lin, counts, goal, costs, settings, eligible=eligible, budget=budget, meet=meet, spent=spent(counts)
+            lin, counts, goal, costs, settings, eligible=eligible, budget=cap, meet=meet, spent=spent(counts)
         )
         repairs = model_checks.missing(grid.groups, counts, order, protocol_counts) if keep_checks else []
         if not repairs:
@@ -571,4 +638,4 @@ def _choose(
         counts = pruned(lin, counts, goal, costs, settings, base, allowed)
     else:
         counts = trimmed(lin, counts, goal, costs, settings, budget + paid, base, allowed)
-    return counts - base, float(w.sum() * costs.rows_per_group)
+    return counts - base, bound

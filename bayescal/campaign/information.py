@@ -119,7 +119,9 @@ class Linearisation:
         """The approximate posterior precision ``(S, d, d)`` of a design measuring group ``k``
         ``counts[k]`` times (rows already measured enter as counts too)."""
         counts = np.asarray(counts, dtype=float)
-        return self.prior + np.einsum("k,skmd,skme->sde", counts, self.factors, self.factors)
+        s, k, m, d = self.factors.shape
+        flat = self.factors.reshape(s, k * m, d)
+        return self.prior + np.swapaxes(flat, 1, 2) @ (flat * np.repeat(counts, m)[None, :, None])
 
     def covariance(self, counts: np.ndarray) -> np.ndarray:
         """Its inverse, ``(S, d, d)`` (symmetrised)."""
@@ -128,7 +130,7 @@ class Linearisation:
 
     def variances(self, cov: np.ndarray) -> np.ndarray:
         """The targets' variances ``(S, T)`` under covariances ``cov`` ``(S, d, d)``."""
-        return np.einsum("std,sde,ste->st", self.gradients, cov, self.gradients)
+        return np.sum((self.gradients @ cov) * self.gradients, axis=-1)
 
     def sd(self, counts: np.ndarray) -> np.ndarray:
         """The targets' expected posterior standard deviations ``(T,)``, averaged over the points, the
@@ -147,10 +149,10 @@ class Linearisation:
         """How much measuring each group once more lowers each target's variance, ``(S, K, T)``, under the
         current covariances ``cov`` (Woodbury: ``Sigma' = Sigma - Sigma U' (I + U Sigma U')^-1 U Sigma``)."""
         factors = self.factors if groups is None else self.factors[:, groups]
-        w = np.einsum("skmd,sde->skme", factors, cov)
-        inner = np.einsum("skmd,sknd->skmn", w, factors) + np.eye(factors.shape[2])
-        v = np.einsum("skmd,std->skmt", w, self.gradients)
-        return np.einsum("skmt,skmt->skt", v, np.linalg.solve(inner, v))
+        w = factors @ cov[:, None]  # (S, K, m, d)
+        inner = w @ np.swapaxes(factors, 2, 3) + np.eye(factors.shape[2])
+        v = w @ np.swapaxes(self.gradients, 1, 2)[:, None]  # (S, K, m, T)
+        return np.sum(v * np.linalg.solve(inner, v), axis=2)
 
 
 def _sites(program: Program, model: CalibrationModel, z: np.ndarray) -> dict:

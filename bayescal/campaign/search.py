@@ -128,8 +128,8 @@ def _group_terms(lin: Linearisation, counts: np.ndarray, eligible: np.ndarray):
     count ``(K_eligible, T)``: ``d v_t / d n_k = -|U_k Sigma g_t|^2`` (averaged over the points)."""
     cov = lin.covariance(counts)
     var = lin.variances(cov).mean(axis=0)
-    a = np.einsum("skmd,sde,ste->skmt", lin.factors[:, eligible], cov, lin.gradients)
-    return var, -np.einsum("skmt,skmt->skt", a, a).mean(axis=0)
+    a = lin.factors[:, eligible] @ (cov @ np.swapaxes(lin.gradients, 1, 2))[:, None]  # (S, K, m, T)
+    return var, -np.sum(a * a, axis=2).mean(axis=0)
 
 
 def relaxed(

@@ -19,7 +19,7 @@ import pandas as pd
 
 from bayescal.characterization.emva1288 import QUANT, Characterization
 from bayescal.characterization.pattern import pattern_images, pattern_sd_draws, spectrogram
-from bayescal.io.files import write_text_atomic
+from bayescal.io.outputs import write_text_atomic
 from bayescal.report.figures import png_base64, subplots
 from bayescal.report.page import escape, image, page, table
 

@@ -81,6 +81,8 @@ class Characterization:
     dark: pd.DataFrame | None = None
     #: the set's stack statistics and mean images (:attr:`bayescal.io.emva.Steps.stack`; empty: pairs only)
     stack: dict = field(default_factory=dict)
+    #: what the layout of the set made the characterisation assume, in words (printed and on the datasheet)
+    notes: tuple[str, ...] = ()
 
     @property
     def problems(self) -> list[str]:
@@ -117,6 +119,7 @@ class Characterization:
             "source": self.source,
             "ranges": self.ranges,
             "dark_current_compatible": self.dark_current_compatible,
+            "notes": list(self.notes),
             "quantities": self.table.to_dict("records"),
         }
 
@@ -127,12 +130,17 @@ def _aligned(steps: Steps) -> pd.DataFrame:
     Both layouts of the standard are accepted: an exposure sweep (a dark pair
     per bright exposure) and an illumination sweep (one exposure, the
     illumination varied, dark pairs at that exposure shared by every step).
+    Dark pairs at one exposure only serve every bright step, whatever its
+    exposure: the dark signal is then taken as the same at every exposure
+    (the dark current is not determined, and is reported so).
     """
     b, d = steps.bright, steps.dark
     dark_t = d["texp_s"].to_numpy()
+    if _dark_exposures(steps) == 1:
+        dark_t = np.full_like(dark_t, np.nan)  # matched below to every bright exposure
     match = []
     for i, t in enumerate(b["texp_s"].to_numpy()):
-        same = np.flatnonzero(np.isclose(dark_t, t, rtol=1e-9, atol=0))
+        same = np.flatnonzero(np.isclose(dark_t, t, rtol=1e-9, atol=0) | np.isnan(dark_t))
         if same.size == 0:
             raise TableError(
                 f"{steps.source}: bright step {i + 1} at exposure {t * 1e3:g} ms has no dark image pair at that "
@@ -158,6 +166,19 @@ def _aligned(steps: Steps) -> pd.DataFrame:
 def _dark_exposures(steps: Steps) -> int:
     """Distinct exposure times of the dark steps: a dark current needs at least two."""
     return int(np.unique(np.round(steps.dark["texp_s"].to_numpy(), 12)).size)
+
+
+def _below_full_scale(c: pd.DataFrame, steps: Steps) -> None:
+    """Refuse a sweep whose bright steps read full scale (a flat field far too bright): the photon
+    transfer needs steps from dark to saturation, and a saturated step has no temporal noise to read."""
+    full = 2**steps.bits - 1
+    saturated = c["mu_y"].to_numpy() >= full - 0.5
+    if c["mu_y"].size - int(saturated.sum()) < 3:
+        raise TableError(
+            f"{steps.source}: {int(saturated.sum())} of {saturated.size} bright steps are saturated (their mean "
+            f"reads {full} DN, the full scale of a {steps.bits}-bit ADC): the flat field is too bright for EMVA "
+            "1288, which needs steps from dark to saturation; lower the illumination or the exposure times"
+        )
 
 
 def _ranges(c: pd.DataFrame) -> dict:
@@ -187,6 +208,7 @@ def _ranges(c: pd.DataFrame) -> dict:
 def standard_method(steps: Steps) -> tuple[dict, dict]:
     """EMVA 1288 point estimates (our implementation of the standard's formulas) and the index ranges."""
     c = _aligned(steps)
+    _below_full_scale(c, steps)
     r = _ranges(c)
     s = slice(r["index_sensitivity_min"], r["index_sensitivity_max"] + 1)
     x_sig = (c["mu_y"] - c["mu_dark"]).to_numpy()
@@ -493,8 +515,31 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
     curves = c.assign(signal=sig, var_signal=dvar)
     dark = steps.dark.reset_index(drop=True) if determined else None
     return Characterization(
-        pd.DataFrame(rows), point, draws, curves, r, compatible, steps.source, curve_draws, dark, steps.stack
+        pd.DataFrame(rows),
+        point,
+        draws,
+        curves,
+        r,
+        compatible,
+        steps.source,
+        curve_draws,
+        dark,
+        steps.stack,
+        _layout_notes(steps),
     )
+
+
+def _layout_notes(steps: Steps) -> tuple[str, ...]:
+    """What the set's layout made the characterisation assume (:func:`_aligned`)."""
+    dark_t = np.unique(np.round(steps.dark["texp_s"].to_numpy(), 12))
+    bright_t = np.unique(np.round(steps.bright["texp_s"].to_numpy(), 12))
+    if dark_t.size == 1 and not np.allclose(bright_t, dark_t[0], rtol=1e-9, atol=0):
+        return (
+            f"one dark exposure ({dark_t[0] * 1e3:g} ms) serves every bright step ({bright_t.min() * 1e3:g}-"
+            f"{bright_t.max() * 1e3:g} ms): the dark signal is taken as the same at every exposure, so a dark "
+            "current adds to the signal; measure dark pairs at each exposure to subtract it",
+        )
+    return ()
 
 
 def _undetermined(name: str) -> str:

@@ -12,7 +12,7 @@ import signal
 import sys
 from typing import NoReturn
 
-from bayescal.cli.parser import build, output_files
+from bayescal.cli.parser import build, input_paths, output_files
 
 __all__ = ["main"]
 
@@ -23,18 +23,19 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     from bayescal._config import numerics
     from bayescal.errors import BayescalError
-    from bayescal.io.ledger import check_output_file, overwrite_allowed
+    from bayescal.io.outputs import check_output_file, overwrite_allowed, reading, writing_as
 
     previous = _catch_interrupts()
     try:
-        with numerics(), overwrite_allowed(getattr(args, "force", False)):
-            check_output_file(*output_files(args))  # before any work: a file of the user's is never replaced
-            return args.func(args)
+        with numerics(), overwrite_allowed(getattr(args, "force", False)), reading(input_paths(args)):
+            with writing_as(args.verb):
+                check_output_file(*output_files(args))  # before any work: a file of the user's is never replaced
+                return args.func(args)
     except BayescalError as exc:
-        print(f"bayescal: error: {exc}", file=sys.stderr)
+        print(f"bayescal: error: {_as_given(str(exc))}", file=sys.stderr)
         return 2
     except (OSError, UnicodeError) as exc:  # unreadable or unwritable paths, wrong encodings
-        print(f"bayescal: error: {_os_message(exc)}", file=sys.stderr)
+        print(f"bayescal: error: {_as_given(_os_message(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         _interrupted()
@@ -78,6 +79,19 @@ def _catch_interrupts():
     if threading.current_thread() is not threading.main_thread():
         return None
     return signal.signal(signal.SIGINT, _interrupted)
+
+
+def _as_given(message: str) -> str:
+    """A message with paths as the user gave them: a shipped example by its name, a path under the current
+    folder relative to it (a message names no folder of the installed package or of the machine)."""
+    import re
+
+    from bayescal.io.resources import models_dir
+
+    shipped = re.escape(str(models_dir()) + os.sep)
+    message = re.sub(shipped + r"([\w.-]+)", r"\1 (a shipped example)", message)
+    here = os.getcwd()
+    return message.replace(here + os.sep, "") if here != os.sep else message
 
 
 def _os_message(exc: BaseException) -> str:

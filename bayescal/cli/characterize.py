@@ -10,8 +10,7 @@ def cmd_characterize(args) -> int:
     from bayescal.characterization.emva1288 import characterize, plot_curves
     from bayescal.cli.progress import stage_reporter
     from bayescal.io.emva import load_steps
-    from bayescal.io.files import write_json_atomic
-    from bayescal.io.outputs import check_output_dir, staged_directory
+    from bayescal.io.outputs import check_output_dir, staged_directory, write_json_atomic
 
     out = check_output_dir(args.out, "characterization")
     stage = stage_reporter()
@@ -33,6 +32,8 @@ def cmd_characterize(args) -> int:
         res.dark_current_compatible
     ]
     print(f"dark current from the mean and from the variance: {verdict} (95 % interval of their difference)")
+    for note in res.notes:
+        print(f"NOTE: {note}")
     print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir() if not p.name.startswith("."))))
     if res.problems:
         print("CHARACTERISATION IMPLAUSIBLE:\n  " + "\n  ".join(res.problems), file=sys.stderr)

@@ -33,4 +33,6 @@ def cmd_design(args) -> int:
         print(f"wrote {out / 'design.toml'} (read by `bayescal simulate --design`), groups.csv and widths.csv")
     # goals asked for and not reached: loud (exit 3); a budget alone asks for the narrowest design it buys
     asked = args.budget_rows is None or bool(args.goal) or args.goal_scale is not None
+    if plan.over_budget:
+        return 3
     return 3 if asked and not (plan.met or plan.done or args.after is not None) else 0

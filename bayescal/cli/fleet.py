@@ -9,8 +9,7 @@ from pathlib import Path
 def cmd_fleet(args) -> int:
     from bayescal.cli.progress import progress_bar, stage_reporter
     from bayescal.fleet import compare_pooling, fit_fleet, load_fleet_table
-    from bayescal.io.files import write_text_atomic
-    from bayescal.io.outputs import check_output_dir
+    from bayescal.io.outputs import check_output_dir, write_text_atomic
     from bayescal.model.spec import load_spec
 
     check_output_dir(args.out, "fleet")
@@ -98,7 +97,8 @@ def cmd_fleet_simulate(args) -> int:
     import tomllib
 
     from bayescal.errors import SpecError
-    from bayescal.io.files import read_text, write_text_atomic
+    from bayescal.io.files import read_text
+    from bayescal.io.outputs import write_text_atomic
     from bayescal.io.resources import example_path
     from bayescal.validation.fleet import design_from_dict, simulate_fleet
 

@@ -37,6 +37,8 @@ def build() -> argparse.ArgumentParser:
     sub = p.add_subparsers(required=True, metavar="COMMAND")
     for verb in VERBS:
         verb(sub)
+    for name, verb_parser in sub.choices.items():
+        verb_parser.set_defaults(verb=name)
     return p
 
 
@@ -51,7 +53,7 @@ def _fit(sub) -> None:
         choices=backends.names(baseline=True),
         help="inference backend (default nuts)",
     )
-    f.add_argument("--out", required=True, help="output directory")
+    folder_output(f, "--out", required=True, help="output directory")
     f.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     f.add_argument("--quiet", action="store_true", help="no progress bar")
     f.add_argument("--report", action="store_true", help="also write OUT/report.html (+ .json, .md)")
@@ -114,7 +116,7 @@ def _maps(sub) -> None:
         help="directory with conditions.csv and one .npy/.tif/.fits/.raw file per stack, or an EMVA 1288 image set: "
         "its descriptor (.txt, images beside it; exposure or illumination sweep) or cropped arrays (.npz)",
     )
-    mp.add_argument("--out", required=True, help="output directory (holds maps.zarr, or maps.nc with --netcdf)")
+    folder_output(mp, "--out", required=True, help="output directory (holds maps.zarr, or maps.nc with --netcdf)")
     mp.add_argument("--calibration", help="channel-level fit directory the maps are relative to (provenance)")
     mp.add_argument("--netcdf", action="store_true", help="write NetCDF (maps.nc) instead of zarr")
     mp.add_argument(
@@ -191,7 +193,7 @@ def _characterize(sub) -> None:
     """The arguments of ``bayescal characterize``."""
     ch = sub.add_parser("characterize", help="EMVA 1288: standard estimates beside posteriors (K, R, QE, dark, ...)")
     ch.add_argument("input", help="EMVA 1288 descriptor (.txt) with its images, crop128.npz, or a reduced steps.csv")
-    ch.add_argument("--out", required=True, help="output directory")
+    folder_output(ch, "--out", required=True, help="output directory")
     ch.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     ch.set_defaults(func=cmd_characterize)
 
@@ -292,7 +294,7 @@ def _design(sub) -> None:
         action="store_false",
         help="drop the rows the model's checks need (the summary says what is given up)",
     )
-    d.add_argument("--out", help="output directory: design.toml, groups.csv, widths.csv")
+    folder_output(d, "--out", help="output directory: design.toml, groups.csv, widths.csv")
     d.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     d.add_argument("--quiet", action="store_true", help="no stage messages")
     d.set_defaults(func=cmd_design)
@@ -313,7 +315,7 @@ def _fleet(sub) -> None:
         "data", help="CSV or Parquet measurement table with 'camera' and optional 'campaign' (date) columns"
     )
     fl.add_argument("--model", required=True, help="model spec (TOML) of one camera, with an optional [fleet] section")
-    fl.add_argument("--out", required=True, help="output directory (fleet posterior, summaries, per-camera fits)")
+    folder_output(fl, "--out", required=True, help="output directory (fleet posterior, summaries, per-camera fits)")
     fl.add_argument(
         "--backend", default="laplace", choices=("laplace", "nuts"), help="stage one's backend (default laplace)"
     )
@@ -341,7 +343,7 @@ def _fleet_query(sub) -> None:
     fq.add_argument(
         "--probability", type=probability, default=0.05, help="risk for the recalibration date (default 0.05)"
     )
-    fq.add_argument("--calibration", help="write this fit directory (for predict, invert, plan)")
+    folder_output(fq, "--calibration", help="write this fit directory (for predict, invert, plan)")
     fq.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     fq.set_defaults(func=cmd_fleet_query)
 
@@ -360,14 +362,14 @@ def _examples(sub) -> None:
     """The arguments of ``bayescal examples``."""
     ex = sub.add_parser("examples", help="list the shipped specs, designs and data; copy one out to edit it")
     ex.add_argument("--copy", metavar="NAME", help="copy this example (a design with its spec) to --to")
-    ex.add_argument("--to", default=".", help="folder to copy into (default: this one)")
+    folder_output(ex, "--to", default=".", help="folder to copy into (default: this one)")
     ex.set_defaults(func=cmd_examples)
 
 
 def _demo(sub) -> None:
     """The arguments of ``bayescal demo``."""
     d = sub.add_parser("demo", help="simulate the seed 000 camera, fit it, compare with least squares")
-    d.add_argument("--out", default="demo-out", help="output directory (default demo-out)")
+    folder_output(d, "--out", default="demo-out", help="output directory (default demo-out)")
     d.add_argument("--seed", type=seed, default=0, help=SEED_HELP)
     d.add_argument("--backend", default="nuts", choices=backends.names(), help="backend (default nuts)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -540,6 +542,29 @@ def file_output(
     p.set_defaults(file_outputs=(*(p.get_default("file_outputs") or ()), (dest, paths, when)))
     if p.get_default("force") is None:
         p.add_argument("--force", action="store_true", default=False, help=FORCE_HELP)
+
+
+def folder_output(p: argparse.ArgumentParser, flag: str, *, help: str, **kwargs) -> None:
+    """A folder-valued output option (``--out DIR``): its value is never taken for an input of the command."""
+    p.add_argument(flag, help=help, **kwargs)
+    dest = flag.lstrip("-").replace("-", "_")
+    p.set_defaults(folder_outputs=(*(p.get_default("folder_outputs") or ()), dest))
+
+
+def input_paths(args: argparse.Namespace) -> list[str]:
+    """Every path the parsed command names that exists and is not one of its outputs: its inputs (a table,
+    a spec, a design, a fit folder, images), which no output of the command may replace."""
+    import os
+
+    outputs = {dest for dest, _, _ in getattr(args, "file_outputs", ())} | set(getattr(args, "folder_outputs", ()))
+    found = []
+    for dest, value in vars(args).items():
+        if dest in outputs or dest in ("func", "verb", "file_outputs", "folder_outputs"):
+            continue
+        for item in value if isinstance(value, list) else [value]:
+            if isinstance(item, str) and item and os.path.lexists(item):
+                found.append(item)
+    return found
 
 
 def output_files(args: argparse.Namespace) -> list[str]:

@@ -24,7 +24,7 @@ def setting_of(args, cal):
 def cmd_predict(args) -> int:
     import numpy as np
 
-    from bayescal.io.files import write_text_atomic
+    from bayescal.io.outputs import write_text_atomic
     from bayescal.posterior.calibration import Calibration
     from bayescal.prediction.readings import predict
 
@@ -49,15 +49,22 @@ def cmd_predict(args) -> int:
 
 
 def cmd_invert(args) -> int:
+    from bayescal.io.outputs import reading
+    from bayescal.prediction.frames import expand_frames
+
+    images = expand_frames(args.image or [])
+    with reading(images):  # the frames a glob names are inputs too: no output replaces them
+        return _invert(args, images)
+
+
+def _invert(args, images) -> int:
     import numpy as np
 
     from bayescal.errors import SpecError
-    from bayescal.io.files import write_text_atomic
+    from bayescal.io.outputs import write_text_atomic
     from bayescal.posterior.calibration import Calibration
-    from bayescal.prediction.frames import expand_frames
     from bayescal.prediction.invert import invert
 
-    images = expand_frames(args.image or [])
     if args.maps is None and bool(images) == (args.dn is not None):
         raise SpecError("give an IMAGE or --dn values (one of them; several images invert a survey)")
     if args.dn is not None and not args.channel:
@@ -130,7 +137,7 @@ def _invert_images(args, cal, setting, images, image) -> int:
     where = f"the workers of {args.scheduler}" if args.scheduler else "this machine"
     print(f"inverting {len(jobs)} frames on {where} into {args.out}/<frame>/", file=sys.stderr)
     with progress_bar(len(jobs), "frames", quiet=False) as tick:
-        results = invert_frames(cal, jobs, scheduler=args.scheduler, tick=tick)
+        results = invert_frames(cal, jobs, survey=args.out, scheduler=args.scheduler, tick=tick)
     total = {k: sum(r[k] for r in results) for k in ("pixels", "clipped", "below_dark", "extrapolated")}
     print(
         f"inverted {len(results)} frames ({total['pixels']} pixels): {total['clipped']} clipped (lower bound only), "
@@ -145,8 +152,7 @@ def _invert_with_maps(args, cal, setting, path, image) -> int:
     import numpy as np
 
     from bayescal.errors import SpecError
-    from bayescal.io.files import write_netcdf
-    from bayescal.io.outputs import check_output_dir, staged_directory
+    from bayescal.io.outputs import check_output_dir, staged_directory, write_netcdf
     from bayescal.maps.apply import apply_maps
     from bayescal.maps.store import read_maps
 
@@ -218,7 +224,7 @@ def cmd_plan(args) -> int:
 
 
 def cmd_scene(args) -> int:
-    from bayescal.io.files import write_json_atomic
+    from bayescal.io.outputs import write_json_atomic
     from bayescal.posterior.calibration import Calibration
     from bayescal.prediction.images import read_image
     from bayescal.prediction.scene import choose_for_scene

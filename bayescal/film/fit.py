@@ -31,9 +31,8 @@ from bayescal.inference import registry as backends
 from bayescal.inference.diagnostics import Diagnostics
 from bayescal.inference.laplace import laplace
 from bayescal.inference.program import LOGLIK, program_of
-from bayescal.io.files import write_json_atomic, write_netcdf
 from bayescal.io.fit_folder import POSTERIOR, SUMMARY, TABLE
-from bayescal.io.outputs import staged_directory
+from bayescal.io.outputs import staged_directory, write_json_atomic, write_netcdf
 
 __all__ = ["BandFit", "FilmFit", "fit_film", "fit_film_table", "REPORTED"]
 

@@ -14,8 +14,8 @@ import pandas as pd
 
 from bayescal.errors import PosteriorError
 from bayescal.film.posterior import FilmCalibration
-from bayescal.io.files import write_json_atomic, write_text_atomic
 from bayescal.io.fit_folder import SUMMARY, FitFolder
+from bayescal.io.outputs import write_json_atomic, write_text_atomic
 from bayescal.report.figures import colours, png_base64, subplots
 from bayescal.report.page import escape, image, page, table, verdict
 

@@ -73,7 +73,7 @@ class FilmTable:
 
     def write_csv(self, path: str | os.PathLike) -> None:
         """Write the table as CSV, atomically."""
-        from bayescal.io.files import write_text_atomic
+        from bayescal.io.outputs import write_text_atomic
 
         write_text_atomic(path, self.frame.to_csv(index=False, float_format="%.10g"))
 

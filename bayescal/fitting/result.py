@@ -28,9 +28,8 @@ from bayescal.fitting.misfit import MisfitThresholds, misfit_checks
 from bayescal.inference import registry as backends
 from bayescal.inference.diagnostics import Diagnostics
 from bayescal.inference.program import LOGLIK
-from bayescal.io.files import write_json_atomic, write_netcdf
 from bayescal.io.fit_folder import LSQ, POSTERIOR, SUMMARY, TABLE
-from bayescal.io.outputs import staged_directory
+from bayescal.io.outputs import staged_directory, write_json_atomic, write_netcdf
 from bayescal.io.table import MeasurementTable
 from bayescal.model.assemble import CalibrationModel
 from bayescal.model.components import reported_dims, site_dims

@@ -48,8 +48,7 @@ def write_calibration(
     """
     import xarray as xr
 
-    from bayescal.io.files import write_json_atomic, write_netcdf
-    from bayescal.io.outputs import check_output_dir, staged_directory
+    from bayescal.io.outputs import check_output_dir, staged_directory, write_json_atomic, write_netcdf
 
     fleet_dir = Path(fleet_dir)
     fleet = FleetFit.load(fleet_dir)

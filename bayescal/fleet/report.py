@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from bayescal.fleet.posterior import FleetFit
-from bayescal.io.files import write_text_atomic
+from bayescal.io.outputs import write_text_atomic
 from bayescal.report.figures import colours, png_base64, subplots
 from bayescal.report.page import escape, image, page, table, verdict
 

@@ -38,8 +38,7 @@ def save_fleet(fit: FleetFit, out_dir: str | os.PathLike) -> Path:
     """Write the fleet directory (replacing ``out_dir`` whole): ``fleet.nc`` (draws and the
     stage-one summaries), ``summary.csv``, ``hyperparameters.csv``, ``units.csv``,
     ``summary.json``, and each camera's latest stage-one fit under ``cameras/``."""
-    from bayescal.io.files import write_json_atomic, write_netcdf
-    from bayescal.io.outputs import staged_directory
+    from bayescal.io.outputs import staged_directory, write_json_atomic, write_netcdf
 
     with staged_directory(out_dir, kind="fleet") as stage:
         write_netcdf(fleet_dataset(fit), stage(FLEET_FILE))

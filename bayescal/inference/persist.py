@@ -101,7 +101,7 @@ def dtype_of(x: Any) -> np.dtype:
 
 
 def _write_atomic(path: Path, blob: bytes) -> None:
-    """A cache file written whole or not at all (not :func:`bayescal.io.files.atomic_path`, which keeps
+    """A cache file written whole or not at all (not :func:`bayescal.io.outputs.atomic_path`, which keeps
     the ledger of a user's output folder)."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
     try:

@@ -38,6 +38,8 @@ class Block:
             raise SpecError("a block needs at least one exposure_s")
         if not self.temperature_c:
             object.__setattr__(self, "temperature_c", None)
+        for key in ("exposure_s", "gain", "tdi_stages", "temperature_c"):
+            _within(getattr(self, key) or (), key, key)
 
     def settings(self) -> list[tuple[float, float, float]]:
         """Every (exposure, gain, tdi) combination of the block."""
@@ -87,6 +89,41 @@ class Truth:
     temperature_ref_c: float = 20.0
     effects: dict[str, dict[str, Any]] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        for key, limit in _TRUTH_LIMITS.items():
+            value = getattr(self, key)
+            if isinstance(value, dict):
+                for k, v in value.items():
+                    _within(tuple(v) if isinstance(v, tuple | list) else (v,), limit, f"truth.{key}.{k}")
+            elif value is not None:
+                _within((value,), limit, f"truth.{key}")
+
+
+#: the physical limit (:data:`bayescal.io.limits.LIMITS`) of each number of a simulation's truth
+_TRUTH_LIMITS = {
+    "response": "finite",
+    "dark_offset": "signal_dn",
+    "dark_slope": "finite",
+    "channel_offset": "signal_dn",
+    "read_noise_dn": "noise_dn",
+    "conversion_gain": "positive",
+    "excess_dn": "noise_dn",
+    "prnu": "relative_sd",
+    "sphere_scale": "positive",
+    "common_rel": "relative_sd",
+    "level_rel": "relative_sd",
+    "dark_doubling_c": "doubling_c",
+    "temperature_ref_c": "temperature_c",
+}
+
+
+def _within(values, limit: str, key: str) -> None:
+    """Each of ``values`` within the physical limit ``limit``; else :class:`SpecError` naming ``key``."""
+    from bayescal.io.limits import check_value
+
+    for i, v in enumerate(values):
+        check_value(v, limit, key if len(values) == 1 else f"{key}[{i}]")
+
 
 @dataclass(frozen=True)
 class Design:
@@ -106,6 +143,9 @@ class Design:
             raise SpecError("a design needs channels and levels")
         if self.n_frames < 1 or self.n_pixels < 1:
             raise SpecError("n_frames and n_pixels must be >= 1")
+        _within(self.levels, "stimulus", "levels")
+        if not all(level > 0 for level in self.levels):
+            raise SpecError(f"levels = {list(self.levels)}; expected sphere levels above 0 (darks are [[dark]] blocks)")
         for block in self.illuminated:
             for i in block.levels if isinstance(block.levels, tuple) else ():
                 if not 0 <= i < len(self.levels):

@@ -142,36 +142,44 @@ class ImageGroup:
         """More than a pair: a stack for the spatial non-uniformity (EMVA 1288 section 8)."""
         return len(self.images) > 2
 
-    def frames(self) -> Iterator[np.ndarray]:
-        """The images one at a time (files read lazily)."""
-        from bayescal.io.files import read_image
-
-        for image in self.images:
-            yield read_image(image) if isinstance(image, Path) else np.asarray(image)
-
-    def stack(self, bits: int, shape: tuple[int, int] | None = None) -> np.ndarray:
-        """All images as one ``(frames, H, W)`` array, checked against the shape and the ADC's range.
+    def frames(self, bits: int | None = None, shape: tuple[int, ...] | None = None) -> Iterator[np.ndarray]:
+        """The images one at a time (files read lazily); with ``bits``, each checked to be a 2-D image of
+        ``shape`` (or of the group's first image's) with values within ``0 .. 2**bits - 1``.
 
         Raises
         ------
         TableError
-            Naming the group and image: another shape than ``shape`` (or than
-            the group's first image), or values outside ``0 .. 2**bits - 1``.
+            Naming the group and the image: another dimensionality or shape, or values outside the ADC's range.
         """
-        full = 2**bits - 1
-        out: list[np.ndarray] = []
-        for image, frame in zip(self.images, self.frames(), strict=True):
-            name = image.name if isinstance(image, Path) else f"image {len(out)}"
-            if frame.ndim != 2 or (shape is not None and frame.shape != shape):
-                raise TableError(
-                    f"{self.where}: {name} has shape {frame.shape}; expected "
-                    + (f"{shape[0]} x {shape[1]} like the first image" if shape else "a 2-D monochrome image")
-                )
-            if frame.size and (frame.min() < 0 or frame.max() > full):
-                raise TableError(f"{self.where}: {name} holds values outside 0..{full} of a {bits}-bit ADC")
-            shape = frame.shape
-            out.append(frame)
-        return np.stack(out)
+        from bayescal.io.files import read_image
+
+        for k, image in enumerate(self.images):
+            frame = read_image(image) if isinstance(image, Path) else np.asarray(image)
+            if bits is not None:
+                name = str(image) if isinstance(image, Path) else f"image {k}"
+                _check_frame(frame, bits, shape, f"{self.where}: {name}")
+                shape = frame.shape
+            yield frame
+
+    def stack(self, bits: int, shape: tuple[int, int] | None = None) -> np.ndarray:
+        """All images as one ``(frames, H, W)`` array, checked as :meth:`frames` checks them."""
+        return np.stack(list(self.frames(bits, shape)))
+
+
+def _check_frame(frame: np.ndarray, bits: int, shape: tuple[int, ...] | None, where: str) -> None:
+    if frame.ndim != 2:
+        kind = "a cube of planes" if frame.ndim == 3 else f"{frame.ndim}-D"
+        raise TableError(
+            f"{where} has shape {frame.shape} ({kind}); expected a 2-D monochrome image, one frame per file"
+        )
+    if shape is not None and frame.shape != shape:
+        raise TableError(
+            f"{where} has shape {frame.shape[0]} x {frame.shape[1]}; expected {shape[0]} x {shape[1]} like the "
+            "set's first image (every image of an EMVA 1288 set has one size)"
+        )
+    full = 2**bits - 1
+    if frame.size and (frame.min() < 0 or frame.max() > full):
+        raise TableError(f"{where} holds values outside 0..{full} of a {bits}-bit ADC")
 
 
 def read_groups(path: str | os.PathLike) -> tuple[int, list[ImageGroup]]:
@@ -258,12 +266,22 @@ def _npz_groups(path: Path) -> tuple[int, list[ImageGroup]]:
         raise TableError(
             f"{path}: missing array(s) {missing}; expected the keys of crop128.npz ({', '.join(_NPZ_KEYS)})"
         )
+    for kind, n in (("bright", len(np.atleast_1d(z["bright_texp"]))), ("dark", len(np.atleast_1d(z["dark_texp"])))):
+        pairs = z[f"{kind}_pairs"]
+        if pairs.ndim != 4 or pairs.shape[0] != n or pairs.shape[1] != 2:
+            raise TableError(
+                f"{path}: {kind}_pairs has shape {pairs.shape}; expected ({n}, 2, height, width): one image pair "
+                f"per entry of {kind}_texp ({n})"
+            )
+    if len(np.atleast_1d(z["bright_photons"])) != len(np.atleast_1d(z["bright_texp"])):
+        raise TableError(f"{path}: bright_photons and bright_texp differ in length; expected one value per bright pair")
     groups = []
-    for i in range(len(z["bright_texp"])):
-        for kind in ("bright", "dark"):
-            photons = float(z["bright_photons"][i]) if kind == "bright" else 0.0
+    for kind in ("bright", "dark"):  # one dark pair may serve every bright pair (an illumination sweep)
+        texp = np.atleast_1d(z[f"{kind}_texp"])
+        photons = np.atleast_1d(z["bright_photons"]) if kind == "bright" else np.zeros(len(texp))
+        for i in range(len(texp)):
             pair = tuple(z[f"{kind}_pairs"][i])
-            groups.append(ImageGroup(kind, float(z[f"{kind}_texp"][i]), photons, pair, f"{path} {kind}_pairs[{i}]"))
+            groups.append(ImageGroup(kind, float(texp[i]), float(photons[i]), pair, f"{path} {kind}_pairs[{i}]"))
     if "bright_stack" in z.files:
         texp, photons = float(z["bright_stack_texp"]), float(z["bright_stack_photons"])
         groups.append(ImageGroup("bright", texp, photons, tuple(z["bright_stack"]), f"{path} bright_stack"))
@@ -278,11 +296,13 @@ def read_descriptor(path: str | os.PathLike, progress: Callable[[int], None] | N
     bits, groups = read_groups(path)
     sat = 2**bits - 1
     rows, stacks = [], {}
+    shape = None  # every image of the set has the first one's size
     for k, g in enumerate(groups):
         if g.is_stack:
-            stacks[g.kind] = ({"texp_ns": g.texp_ns, "photons": g.photons}, reduce_stack(g.frames()))
+            stacks[g.kind] = ({"texp_ns": g.texp_ns, "photons": g.photons}, reduce_stack(g.frames(bits, shape)))
         elif len(g.images) == 2:
-            a, b = g.frames()
+            a, b = g.frames(bits, shape)
+            shape = a.shape
             rows.append({"kind": g.kind, "texp_s": g.texp_ns * 1e-9, "photons": g.photons, **reduce_pair(a, b, sat)})
         if progress is not None:
             progress(k + 1)

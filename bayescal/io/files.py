@@ -1,29 +1,18 @@
-"""Reading inputs and writing single files atomically: a failed run never leaves a
-half-written file (output folders: :mod:`bayescal.io.outputs`)."""
+"""Reading inputs: text files in the encodings labs save them in, and images of every format a camera
+writes, each refused with the file named when it cannot be read (writing: :mod:`bayescal.io.outputs`)."""
 
 from __future__ import annotations
 
-import errno
-import json
 import os
-import tempfile
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from bayescal.io.outputs.claims import read_from
 
 if TYPE_CHECKING:  # numpy is imported on use: the CLI's help stays instant
     import numpy as np
 
-__all__ = [
-    "read_text",
-    "atomic_path",
-    "write_errors",
-    "write_netcdf",
-    "write_text_atomic",
-    "write_json_atomic",
-    "read_image",
-]
+__all__ = ["read_text", "read_image"]
 
 
 def read_text(path: str | os.PathLike, error: type[Exception], what: str = "file") -> str:
@@ -42,6 +31,7 @@ def read_text(path: str | os.PathLike, error: type[Exception], what: str = "file
         raw = path.read_bytes()
     except OSError as exc:
         raise error(f"cannot read {path}: {exc.strerror or exc}") from exc
+    read_from(path)
     if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
         try:
             return raw.decode("utf-16")
@@ -55,109 +45,6 @@ def read_text(path: str | os.PathLike, error: type[Exception], what: str = "file
             f"{path}: line {line} is not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); "
             f"expected a UTF-8 {what} (re-save it as UTF-8)"
         ) from None
-
-
-@contextmanager
-def atomic_path(target: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``target``; rename it onto ``target`` on success.
-
-    A ``target`` bayescal may not replace (a file of the user's: :func:`bayescal.io.ledger.refusal`)
-    is refused before the block runs and again at the rename.  In a bayescal output folder the file
-    joins the run's list of files in the same step (:func:`bayescal.io.outputs.record_file`);
-    elsewhere it joins the folder's record of bayescal's files (:func:`bayescal.io.ledger.commit_file`).
-    A write that fails for want of space or a file-size limit raises
-    :class:`~bayescal.errors.OutputError` naming ``target``, and leaves nothing behind.
-    """
-    from bayescal.io.ledger import check_output_file, commit_file
-    from bayescal.io.outputs import record_file
-
-    target = Path(target)
-    check_output_file(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
-    try:
-        with write_errors(target):
-            yield tmp_path
-            os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the usual permissions
-            if not record_file(tmp_path, target):
-                commit_file(tmp_path, target)
-    finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
-
-
-#: errors of a write that the disk or the system refused: reported as the output's, not as a traceback
-_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS})
-
-
-@contextmanager
-def write_errors(target: str | os.PathLike) -> Iterator[None]:
-    """Turn a write refused by the disk (full, a quota, a file-size limit, read-only) into
-    :class:`~bayescal.errors.OutputError` naming ``target``."""
-    from bayescal.errors import OutputError
-
-    try:
-        yield
-    except OSError as exc:
-        if exc.errno not in _WRITE_ERRNOS:
-            raise
-        raise OutputError(f"cannot write {target}: {os.strerror(exc.errno)}; nothing was written there") from None
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def write_netcdf(data: Any, path: str | os.PathLike) -> None:
-    """Write an xarray Dataset or DataTree to ``path`` as NetCDF-4 (h5netcdf).
-
-    The file is serialised in memory and written with a plain write: a disk that fills up or a
-    file-size limit then fails in that write, with an ``OSError`` the caller reports, instead of
-    inside the HDF5 library, which leaves its handles broken and can crash the process at exit.
-    """
-    view = data.to_netcdf(None, engine="h5netcdf")
-    try:
-        payload = bytes(view)
-    finally:
-        view.release()  # a view left exported when its buffer is collected crashes the process at exit
-    with open(path, "wb") as f:
-        f.write(payload)
-
-
-def write_text_atomic(target: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``target`` atomically."""
-    with atomic_path(target) as tmp:
-        tmp.write_text(text)
-
-
-def write_json_atomic(target: str | os.PathLike, obj: Any) -> None:
-    """Write ``obj`` as indented JSON atomically (NaN written as null)."""
-    write_text_atomic(target, json.dumps(_jsonable(obj), indent=2, allow_nan=False) + "\n")
-
-
-def _jsonable(obj: Any) -> Any:
-    import math
-
-    import numpy as np
-
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        value = float(obj)
-        return value if math.isfinite(value) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
@@ -180,6 +67,7 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
         raise TableError(f"{path} is a folder; expected an image file")
     if path.stat().st_size == 0:
         raise TableError(f"{path} is empty (0 bytes); expected a {_IMAGE_SUFFIXES[suffix]} image")
+    read_from(path)
     try:
         img = _decode(path, suffix)
     except TableError:

@@ -73,6 +73,9 @@ LIMITS: dict[str, Limit] = {
     "relative_sd": Limit("relative standard deviation", "", 0.0, 0.5, high_open=True),
     "doubling_c": Limit("doubling temperature", "degC", 0.0, 100.0, low_open=True),
     "positive": Limit("value", "", 0.0, 1e300, low_open=True, why="a finite number above 0"),
+    "noise_dn": Limit("noise", "DN", 0.0, 2.0**32, why="a standard deviation, >= 0"),
+    "signal_dn": Limit("signal", "DN", -(2.0**32), 2.0**32, why="a finite level in DN"),
+    "finite": Limit("value", "", -1e300, 1e300, why="a finite number"),
 }
 
 

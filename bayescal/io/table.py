@@ -15,8 +15,9 @@ import numpy as np
 import pandas as pd
 
 from bayescal.errors import TableError
-from bayescal.io.files import atomic_path, read_text
+from bayescal.io.files import read_text
 from bayescal.io.limits import limit
+from bayescal.io.outputs import atomic_path
 
 __all__ = ["MeasurementTable", "load_table", "read_frame", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
@@ -152,6 +153,7 @@ def read_frame(path: str | os.PathLike) -> pd.DataFrame:
             raise TableError(f"{path} is not a readable Parquet file ({type(exc).__name__}: {exc})") from None
     if suffix in (".csv", ".txt"):
         text = read_text(path, TableError, "measurement table (CSV)")
+        _comma_separated(text, path)
         try:
             return pd.read_csv(io.StringIO(text), dtype=str, skipinitialspace=True, comment="#")
         except pd.errors.EmptyDataError as exc:
@@ -159,6 +161,24 @@ def read_frame(path: str | os.PathLike) -> pd.DataFrame:
         except pd.errors.ParserError as exc:
             raise TableError(f"{path} is not a well-formed CSV table: {exc}") from None
     raise TableError(f"{path}: expected a .csv or .parquet file, got '{suffix}'")
+
+
+#: separators a spreadsheet writes where a CSV has commas, by name
+_SEPARATORS = {";": "semicolons (';')", "\t": "tabs", "|": "vertical bars ('|')"}
+
+
+def _comma_separated(text: str, path: Path) -> None:
+    """Refuse a table whose header is separated by something other than commas (a spreadsheet's export
+    in a locale with decimal commas), naming the separator, before it is read as one column."""
+    header = next((line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")), "")
+    if "," in header:
+        return
+    for sep, name in _SEPARATORS.items():
+        if header.count(sep) >= 2:
+            raise TableError(
+                f"{path}: the header row '{header.strip()[:80]}' is separated by {name}, not commas; save the "
+                "table as comma-separated CSV with decimal points (a spreadsheet's 'CSV (comma delimited)')"
+            )
 
 
 def _validate(df: pd.DataFrame, source: str) -> tuple[pd.DataFrame, str]:

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bayescal.io.files import write_text_atomic
+from bayescal.io.outputs import write_text_atomic
 from bayescal.report.figures import png_base64, subplots
 from bayescal.report.page import escape, image, page, table
 from bayescal.report.text import markdown_table

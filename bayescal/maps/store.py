@@ -20,8 +20,7 @@ import numpy as np
 
 from bayescal._config import numerics
 from bayescal.errors import TableError, optional
-from bayescal.io.files import write_netcdf
-from bayescal.io.outputs import staged_directory
+from bayescal.io.outputs import staged_directory, write_netcdf
 from bayescal.maps.build import lazy_maps
 from bayescal.maps.kernel import block_maps
 from bayescal.maps.model import SensorModel, fit_map_model

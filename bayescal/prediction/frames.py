@@ -2,10 +2,12 @@
 
 Each frame is read, checked against the camera's bit depth, inverted with
 :func:`bayescal.prediction.images.invert_image` and written to its own
-radiance folder (``OUT/<frame name>/``, atomically, with its record), so an
-interrupted survey keeps every frame it finished and a rerun replaces only
-bayescal's own outputs.  Every target folder is checked before the first
-frame is inverted: a folder holding a user's files stops the run at once.
+radiance folder (``OUT/<frame name>/``, with its record).  The survey owns
+``OUT`` as every verb owns its output folder: ``OUT`` is checked before the
+first frame (missing, empty, or an earlier survey nobody changed), the frames
+are staged beside it and put in place together with the survey's record, so
+an interrupted or failed survey leaves the earlier one (or nothing) whole,
+and a rerun replaces only bayescal's own survey.
 
 The per-DN tables (:mod:`bayescal.prediction.tables`) are computed once,
 before the first frame, for every value the camera can read, and kept beside
@@ -15,6 +17,7 @@ reads them from there, so a frame costs a read, a gather and a write.
 
 from __future__ import annotations
 
+import dataclasses
 import glob
 import os
 from collections.abc import Callable, Sequence
@@ -132,6 +135,7 @@ def invert_frames(
     cal,
     jobs: Sequence[FrameJob],
     *,
+    survey: str | os.PathLike | None = None,
     scheduler: str | None = None,
     tick: Callable[[int], None] | None = None,
     first: np.ndarray | None = None,
@@ -140,18 +144,31 @@ def invert_frames(
 
     ``cal`` is the calibration the jobs' ``posterior`` names, already read; ``first``, the first
     frame's image where the caller has read it (checked before the calibration was loaded).
+    ``survey``: the folder the jobs' folders lie in (:func:`frame_outputs`), written as one output of
+    kind ``"survey"`` (see the module docstring); without it each job's folder is its own output.
     ``scheduler`` is a ``dask.distributed`` scheduler address: the frames
     run on its workers (which must see the same files); None runs them here,
     one after another, each gather on every core.  ``tick(done)`` reports
     progress.
     """
-    from bayescal.io.outputs import check_output_dir
-    from bayescal.prediction.tables import fill, persist_tables, restore_tables
+    from bayescal.io.outputs import check_output_dir, staged_directory
 
-    for job in jobs:  # every target checked before any work: a user's folder stops the run at once
+    for job in jobs:  # every input and target checked before any work
         if not Path(job.image).is_file():
             raise FileNotFoundError(f"no such image: {job.image}")
-        check_output_dir(job.out, "radiance")
+        if survey is None:
+            check_output_dir(job.out, "radiance")
+    if survey is None:
+        return _invert_all(cal, jobs, scheduler, tick, first)
+    with staged_directory(survey, "survey") as stage:
+        staged = [dataclasses.replace(j, out=str(stage.root / Path(j.out).name)) for j in jobs]
+        results = _invert_all(cal, staged, scheduler, tick, first)
+    return [r | {"out": j.out} for r, j in zip(results, jobs, strict=True)]
+
+
+def _invert_all(cal, jobs: Sequence[FrameJob], scheduler, tick, first) -> list[dict]:
+    from bayescal.prediction.tables import fill, persist_tables, restore_tables
+
     restore_tables(cal)
     if scheduler is not None:  # the workers read the tables from disk: every DN value, computed once here
         for job in {(j.cfa, j.channel, j.channels, j.n_avg, j.seed, _setting(j)): j for j in jobs}.values():
@@ -164,8 +181,8 @@ def invert_frames(
             results.append(invert_frame(job, cal, first if done == 1 else None))
             if tick is not None:
                 tick(done)
-    except (TableError, SpecError) as exc:  # a bad frame: say how far the survey got
-        raise type(exc)(f"{exc} (frame {len(results) + 1} of {len(jobs)}; {len(results)} written)") from None
+    except (TableError, SpecError) as exc:  # a bad frame: say which, and that nothing of the survey was kept
+        raise type(exc)(f"{exc} (frame {len(results) + 1} of {len(jobs)}; no frame was written)") from None
     finally:
         persist_tables(cal)  # the tables the frames needed, kept for the next run
     return results

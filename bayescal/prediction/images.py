@@ -18,8 +18,8 @@ import xarray as xr
 
 from bayescal.errors import SpecError, TableError
 from bayescal.io.cfa import CFA_PATTERNS, cfa_cells, channel_map
-from bayescal.io.files import read_image, write_netcdf
-from bayescal.io.outputs import staged_directory
+from bayescal.io.files import read_image
+from bayescal.io.outputs import staged_directory, write_netcdf
 from bayescal.model.setting import Setting
 from bayescal.posterior.calibration import Calibration
 from bayescal.prediction.invert import BOUND_NAMES, invert, reading_prnu

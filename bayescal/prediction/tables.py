@@ -290,7 +290,7 @@ def persist_tables(cal: Calibration) -> list[Path]:
     itself is unaffected).
     """
     from bayescal.errors import OutputError
-    from bayescal.io.outputs import record_file
+    from bayescal.io.outputs import record_file, writing_as
 
     found = _posterior_file(cal)
     store = _store(cal)
@@ -306,7 +306,9 @@ def persist_tables(cal: Calibration) -> list[Path]:
             fd, tmp = tempfile.mkstemp(prefix=".inversion-", suffix=".npz", dir=path.parent)
             with os.fdopen(fd, "wb") as f:
                 np.savez(f, records=store[key], meta=np.array(meta))
-            if record_file(Path(tmp), target):
+            with writing_as("inversion tables"):
+                kept = record_file(Path(tmp), target)
+            if kept:
                 written.append(target)
             else:
                 Path(tmp).unlink(missing_ok=True)

@@ -38,7 +38,7 @@ def png_base64(fig, dpi: int = 110) -> str:
 
 def save_figure(fig, path, dpi: int = 110) -> None:
     """Write the figure to ``path`` atomically, in the format its suffix names (``.png``, ``.pdf``, ...)."""
-    from bayescal.io.files import atomic_path
+    from bayescal.io.outputs import atomic_path
 
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format=str(path).rsplit(".", 1)[-1])

@@ -29,8 +29,8 @@ import pandas as pd
 
 from bayescal.errors import PosteriorError
 from bayescal.inference import registry as backends
-from bayescal.io.files import atomic_path, write_json_atomic, write_text_atomic
 from bayescal.io.fit_folder import POSTERIOR, SUMMARY, FitFolder
+from bayescal.io.outputs import atomic_path, write_json_atomic, write_text_atomic
 from bayescal.model import kinds
 from bayescal.model.components import Saturation
 from bayescal.model.setting import Setting
@@ -100,7 +100,13 @@ def write_report(
     each figure as a PNG (:func:`figure_paths`: ``report-response.png``, ...; the chains' trace and rank
     plots only for a backend with chains), for a lab's own documents.
     """
-    fit_dir = Path(fit_dir)
+    from bayescal.io.outputs import writing_as
+
+    with writing_as("report"):  # a report's files replace a report's, never another product added to a fit
+        return _write_report(Path(fit_dir), out, seed, figures)
+
+
+def _write_report(fit_dir: Path, out: str | os.PathLike | None, seed: int, figures: bool) -> Path:
     out = Path(out) if out is not None else fit_dir / "report.html"
     folder = FitFolder.at(fit_dir, "`bayescal report`", needs=(SUMMARY, POSTERIOR))
     try:
@@ -116,7 +122,7 @@ def write_report(
             f"{folder.file(SUMMARY)} is not a bayescal summary ({type(exc).__name__}: {exc}); re-run `bayescal fit`"
         ) from None
     if figures:  # before any drawing: a file of the user's is never replaced
-        from bayescal.io.ledger import check_output_file
+        from bayescal.io.outputs import check_output_file
 
         check_output_file(*figure_paths(out))
     cal = Calibration.load(folder)  # the posterior opened once: the figures below read the same tree

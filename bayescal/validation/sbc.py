@@ -36,7 +36,7 @@ from bayescal.errors import SpecError, TableError
 from bayescal.fitting.batch import FitBatch, fit_models, with_data
 from bayescal.fitting.result import SAMPLED
 from bayescal.inference.program import program_for
-from bayescal.io.files import write_text_atomic
+from bayescal.io.outputs import write_text_atomic
 from bayescal.model.assemble import CalibrationModel
 from bayescal.model.data import check_levels_per_channel
 from bayescal.report.text import markdown_table

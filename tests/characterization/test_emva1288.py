@@ -185,9 +185,14 @@ def test_illumination_sweep_layout_and_undetermined_dark_current():
         assert np.isnan(t.loc[name, "median"]) and np.isnan(t.loc[name, "standard"])
         assert "one exposure time" in t.loc[name, "note"]
     assert res.dark_current_compatible is None
-    # a bright exposure with no dark pair at that exposure is refused, naming it
+    assert res.notes == ()
+    # one dark pair serves bright steps at another exposure too (a cropped set's layout), and says so
+    other = characterize(dataclasses.replace(steps, bright=bright.assign(texp_s=t0 * 2)))
+    assert len(other.notes) == 1 and "the dark signal is taken as the same at every exposure" in other.notes[0]
+    # with darks at several exposures, a bright exposure without its dark pair is refused, naming it
+    two = dataclasses.replace(steps, dark=sweep.dark.iloc[[-2, -1]].reset_index(drop=True))
     with pytest.raises(TableError, match="bright step 1 at exposure"):
-        characterize(dataclasses.replace(steps, bright=bright.assign(texp_s=t0 * 2)))
+        characterize(dataclasses.replace(two, bright=bright.assign(texp_s=t0 * 2)))
 
 
 def test_bit_depth_of_a_reduced_table(tmp_path):

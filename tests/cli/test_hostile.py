@@ -30,8 +30,8 @@ import bayescal as bc
 from bayescal.cli import main
 from bayescal.cli.parser import build
 from bayescal.errors import SpecError, TableError
-from bayescal.io.ledger import LEDGER
 from bayescal.io.limits import LIMITS
+from bayescal.io.outputs import LEDGER
 from bayescal.io.table import COLUMN_LIMITS
 from tests.cli.conftest import laplace_fit_folder
 from tests.conftest import MODELS

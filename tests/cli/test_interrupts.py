@@ -17,14 +17,14 @@ SPEC = str(MODELS / "seed000_bayer.toml")
 #: runs the CLI with a SIGINT raised at one named point of writing the output
 SCRIPT = """
 import signal, sys
-from bayescal.io import outputs
+from bayescal.io.outputs import interrupts
 from bayescal.cli import main
 
 def checkpoint(name):
     if name == sys.argv[1]:
         signal.raise_signal(signal.SIGINT)
 
-outputs._checkpoint = checkpoint
+interrupts.checkpoint = checkpoint
 sys.exit(main(sys.argv[2:]))
 """
 

@@ -9,7 +9,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bayescal.errors import OutputError, PosteriorError
-from bayescal.io.files import write_text_atomic
 from bayescal.io.outputs import (
     FORMAT,
     MARKER,
@@ -18,6 +17,7 @@ from bayescal.io.outputs import (
     read_marker,
     staged_directory,
     verify_output,
+    write_text_atomic,
 )
 
 

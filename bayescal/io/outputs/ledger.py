@@ -3,67 +3,44 @@
 A file-valued output (``predict --out table.csv``, a report beside a fit, a simulated table)
 lands in a folder of the user's, beside the user's own files.  Each folder where bayescal
 writes such files holds a small record, :data:`LEDGER`, listing every file bayescal put there
-with its size and SHA-256 (the same record an output folder keeps of its files,
-:mod:`bayescal.io.outputs`).  A target may be replaced only when that record lists it and its
-content is still what bayescal wrote; anything else (a file of the user's, one bayescal wrote
-that was edited since, a symbolic link) is refused before any work, naming the file, unless the
-caller allows it explicitly (:func:`overwrite_allowed`, the command line's ``--force``).
+with its size and SHA-256, each entry sealed (:mod:`.seal`).  A target may be replaced only when
+that record lists it with this account's seal and its content is still what bayescal wrote;
+anything else (a file of the user's, one bayescal wrote that was edited since, an entry written
+by hand, a symbolic link) is refused before any work, naming the file, unless the caller allows
+it explicitly (:func:`~.claims.overwrite_allowed`, the command line's ``--force``).  In a bayescal
+output folder the folder's own record decides (:func:`~.folders.member_refusal`), and no command
+writes over one of its inputs (:func:`~.claims.reading`), with ``--force`` or without.
 
 The record is updated in the same step as the file is put in place, under a lock on the folder,
-so two runs writing into one folder keep both their entries.  Writes are atomic: the file is
-written beside the target and renamed onto it (:func:`bayescal.io.files.atomic_path`).
+so two runs writing into one folder keep both their entries.
 """
 
 from __future__ import annotations
 
 import contextlib
-import contextvars
 import fcntl
-import hashlib
 import json
 import os
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-__all__ = ["LEDGER", "check_output_file", "commit_file", "overwrite_allowed", "refusal"]
+from bayescal.io.outputs import claims, interrupts
+from bayescal.io.outputs.disk import as_given, public, sha256
+from bayescal.io.outputs.folders import FORMAT, member_refusal, read_marker
+from bayescal.io.outputs.seal import seal, sealed
+
+__all__ = ["LEDGER", "check_output_file", "commit_file", "refusal"]
 
 #: the record of the single files bayescal wrote into a folder (one per folder, hidden)
 LEDGER = ".bayescal-files"
 _FORMAT = 1
-#: files up to this size are recorded with their SHA-256, larger ones with their size and modification time
-_HASHED_BYTES = 64 * 2**20
-
-_FORCE: contextvars.ContextVar[bool] = contextvars.ContextVar("bayescal_overwrite", default=False)
+#: what every entry of a ledger is sealed for (the entries of an output folder are sealed for its run)
+_CONTEXT = "files"
 
 
-@contextlib.contextmanager
-def overwrite_allowed(allowed: bool = True) -> Iterator[None]:
-    """Within the block, single files may replace files bayescal did not write (``--force``).
-
-    Output folders are not affected: a folder of the user's is never replaced
-    (:func:`bayescal.io.outputs.check_output_dir`).
-    """
-    token = _FORCE.set(bool(allowed))
-    try:
-        yield
-    finally:
-        _FORCE.reset(token)
-
-
-def _hash(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def _entry(path: Path) -> dict:
-    st = path.stat()
-    if st.st_size <= _HASHED_BYTES:
-        return {"size": st.st_size, "sha256": _hash(path)}
-    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
+def _entry(path: Path, name: str) -> dict:
+    return seal(_CONTEXT, name, {"size": path.stat().st_size, "sha256": sha256(path)})
 
 
 def _read(directory: Path) -> dict[str, dict]:
@@ -76,18 +53,19 @@ def _read(directory: Path) -> dict[str, dict]:
     return {str(k): v for k, v in files.items() if isinstance(v, dict)} if isinstance(files, dict) else {}
 
 
-def _unchanged(path: Path, entry: dict) -> bool:
-    st = path.stat()
-    if st.st_size != entry.get("size"):
-        return False
-    if "sha256" in entry:
-        return _hash(path) == entry["sha256"]
-    return st.st_mtime_ns == entry.get("mtime_ns")
+def _ours(path: Path, entry: dict | None) -> str | None:
+    """Why the ledger's ``entry`` does not make ``path`` bayescal's own (``None``: it does)."""
+    if entry is None:
+        return "bayescal did not write it"
+    if "sha256" not in entry or not sealed(_CONTEXT, path.name, entry):
+        return f"its entry in {path.parent / LEDGER} was not written by bayescal under this account"
+    if path.stat().st_size != entry.get("size") or sha256(path) != entry["sha256"]:
+        return "it was changed after bayescal wrote it"
+    return None
 
 
 def refusal(target: str | os.PathLike) -> str | None:
-    """Why ``target`` may not be written (``None``: it may), ignoring :func:`overwrite_allowed`
-    for everything but a file of the user's."""
+    """Why ``target`` may not be written (``None``: it may)."""
     target = Path(target)
     if target.is_symlink():
         link = os.readlink(target)
@@ -95,34 +73,29 @@ def refusal(target: str | os.PathLike) -> str | None:
             f"{target} is a symbolic link (to {link}); bayescal does not write through links, which could "
             "replace a file elsewhere: give the real path"
         )
+    given = claims.input_at(target)
+    if given is not None:
+        what = "an input" if given == str(target) else f"{given}, an input"
+        return f"refusing to write {target}: it is {what} of this command (--force does not apply)"
     if not target.exists():
         parent = target.absolute().parent
         while not parent.exists():
             parent = parent.parent
         if not parent.is_dir() or not os.access(parent, os.W_OK):
-            return f"cannot create {target}: {parent} is not a writable folder"
+            return f"cannot create {target}: {as_given(parent, target)} is not a writable folder"
         return None
     if target.is_dir():
         return f"{target} is a folder; expected a file name for this output"
     if not target.is_file():
         return f"{target} is not a regular file (a device, a pipe or a socket); give a file name"
-    from bayescal.io.outputs import FORMAT, read_marker
-
     marker = read_marker(target.parent)
     if marker and marker.get("format") == FORMAT:  # a file of an output folder: its run's list decides
-        if target.name in marker.get("files", {}):
-            return None
-        return f"refusing to overwrite {target}: the run that wrote {target.parent} did not write it (move it first)"
-    if _FORCE.get():
+        return member_refusal(target, marker)
+    if claims.forced():
         return None
-    entry = _read(target.parent).get(target.name)
-    if entry is None:
-        return f"refusing to overwrite {target}: bayescal did not write it (move it, give another name, or --force)"
-    if not _unchanged(target, entry):
-        return (
-            f"refusing to overwrite {target}: it was changed after bayescal wrote it (move it, give another "
-            "name, or --force)"
-        )
+    why = _ours(target, _read(target.parent).get(target.name))
+    if why is not None:
+        return f"refusing to overwrite {target}: {why} (move it, give another name, or --force)"
     return None
 
 
@@ -157,13 +130,22 @@ def _locked(directory: Path) -> Iterator[None]:
 
 def commit_file(tmp: Path, target: Path) -> None:
     """Rename the finished ``tmp`` onto ``target`` and enter it in the folder's record, in one locked step;
-    the target is checked again first (a file of the user's may have arrived while the run worked)."""
+    the target is checked again first (a file of the user's may have arrived while the run worked).
+
+    A record that is not a file (a folder, a link) is refused before the file is put in place.
+    """
     from bayescal.errors import OutputError
-    from bayescal.io.outputs import interrupts_held
 
     directory = target.parent
-    entry = _entry(tmp)
-    with _locked(directory), interrupts_held():
+    record_path = directory / LEDGER
+    if os.path.lexists(record_path) and (record_path.is_symlink() or not record_path.is_file()):
+        raise OutputError(
+            f"cannot write {target}: {target.with_name(LEDGER)}, where bayescal records the files it writes "
+            "into this folder, is not a file; remove it, or write elsewhere"
+        )
+    entry = _entry(tmp, target.name)
+    public(tmp)
+    with _locked(directory), interrupts.interrupts_held():
         why = refusal(target)
         if why is not None:
             raise OutputError(why)
@@ -173,8 +155,9 @@ def commit_file(tmp: Path, target: Path) -> None:
         try:
             with os.fdopen(fd, "w") as f:
                 f.write(json.dumps({"format": _FORMAT, "files": files}, indent=1, sort_keys=True) + "\n")
+            public(record)
             os.replace(tmp, target)
-            os.replace(record, directory / LEDGER)
+            os.replace(record, record_path)
         finally:
             if os.path.exists(record):
                 os.unlink(record)

@@ -2,56 +2,55 @@
 
 Every folder bayescal writes holds a marker file, :data:`MARKER`, that names the run that
 wrote it (a run id, the kind of output, the bayescal version, the format) and lists every
-file of the run with its size and, for files up to :data:`HASHED_BYTES`, its SHA-256.  The
-marker is what ties each file to its run: a file the run did not write, or one whose content
-changed since, is found by comparing the folder with the list.
+file of the run with its size and, for files up to :data:`HASHED_BYTES`, its SHA-256, each
+entry sealed (:mod:`.seal`).  The files the run wrote are the folder's *members*; a file added
+later (a report, a prediction table, an inversion's tables) is listed as an *addition*, with the
+product that added it.
 
 Writing.  A run stages its files in a hidden folder beside the output and puts it in place
 in one rename (:func:`staged_directory`).  A folder is replaced only when its marker says
-bayescal wrote it, of the same kind, and every file in it is the run's own, unchanged; any
-other non-empty folder is refused before any work (:func:`check_output_dir`), so bayescal
-never deletes a file it did not write.  A file added to a finished output later (a report)
-is written atomically and entered in the list in the same step (:func:`record_file`).
+bayescal wrote it, of the same kind, every entry carries this account's seal, every file in it
+is listed and unchanged, and it holds none of the command's inputs; any other non-empty folder
+is refused before any work (:func:`check_output_dir`), so bayescal never deletes a file it did
+not write.  A file added to a finished output is written atomically and entered in the list in
+the same step (:func:`record_file`); it never replaces a member (:func:`member_refusal`).
 
 Interrupts.  The swap of the old folder for the new one, and each addition to the list, run
-with Ctrl-C held back (:func:`interrupts_held`): the signal is acted on as soon as the step
-is over, so an interrupt at any moment leaves the old output or the new one whole, and
-:func:`committed` tells the interrupt handler truthfully which.
+with Ctrl-C held back (:func:`~.interrupts.interrupts_held`).
 
 Reading.  :func:`verify_output` checks a folder before a reader uses it: the marker, the
-format, the kind, and that each listed file is the one the run wrote.
+format, the kind, and that each listed file is the one the run wrote.  Reading needs no seal.
 """
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
 import shutil
-import signal
 import tempfile
-import threading
 import uuid
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from bayescal.io.files import write_errors
+from bayescal.io.outputs import claims, interrupts
+from bayescal.io.outputs.disk import as_given, public, sha256, write_errors
+from bayescal.io.outputs.seal import seal, sealed
 
 __all__ = [
     "MARKER",
     "FORMAT",
+    "HASHED_BYTES",
     "RunInfo",
+    "Stage",
     "check_output_dir",
     "staged_directory",
     "scratch_directory",
     "record_file",
+    "member_refusal",
     "verify_output",
     "read_marker",
-    "interrupts_held",
-    "committed",
-    "discard_staging",
 ]
 
 #: written into every output folder bayescal makes: the run's id and the list of its files
@@ -69,18 +68,11 @@ KIND_NAMES = {
     "fleet": "a fleet fit (`bayescal fleet`)",
     "maps": "per-pixel maps (`bayescal maps`)",
     "radiance": "inverted radiance images (`bayescal invert`)",
+    "survey": "a survey's inverted frames (`bayescal invert` of several images)",
     "characterization": "an EMVA 1288 characterisation (`bayescal characterize`)",
+    "design": "a campaign design (`bayescal design`)",
     "output": "a bayescal output",
 }
-
-#: staging folders of outputs being written in this process (removed on an interrupt)
-_STAGING: set[Path] = set()
-#: output folders put in place (or added to) by this process, in order
-_COMMITTED: list[Path] = []
-
-
-def _checkpoint(name: str) -> None:
-    """A named point in writing an output (tests interrupt the process here)."""
 
 
 @dataclass(frozen=True)
@@ -97,31 +89,29 @@ class RunInfo:
         """The run in words, for messages."""
         return f"{KIND_NAMES.get(self.kind, self.kind)}, run {self.run_id[:8]}"
 
+    def members(self) -> list[str]:
+        """The files the run itself wrote (not those added to its folder later)."""
+        return [name for name, entry in self.files.items() if "added" not in entry]
+
 
 # ----------------------------------------------------------------------------- the marker
-def _hash(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def _entry(path: Path, top_level: bool) -> dict:
+def _entry(path: Path, run_id: str, rel: str, added: str | None = None) -> dict:
     size = path.stat().st_size
     entry: dict = {"size": size}
-    if top_level and size <= HASHED_BYTES:
-        entry["sha256"] = _hash(path)
-    return entry
+    if "/" not in rel and size <= HASHED_BYTES:
+        entry["sha256"] = sha256(path)
+    if added is not None:
+        entry["added"] = added
+    return seal(run_id, rel, entry)
 
 
-def _listing(root: Path) -> dict[str, dict]:
-    """Every file under ``root`` but the marker, by its POSIX path relative to ``root``."""
+def _listing(root: Path, run_id: str) -> dict[str, dict]:
+    """Every file under ``root`` but the marker, by its POSIX path relative to ``root``, sealed."""
     files = {}
     for path in sorted(root.rglob("*")):
         if path.is_file() and path.name != MARKER:
             rel = path.relative_to(root).as_posix()
-            files[rel] = _entry(path, "/" not in rel)
+            files[rel] = _entry(path, run_id, rel)
     return files
 
 
@@ -141,62 +131,23 @@ def _write_marker(directory: Path, marker: dict) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f"{MARKER}.", suffix=".tmp", dir=directory)
     with os.fdopen(fd, "w") as f:
         f.write(json.dumps(marker, indent=1, sort_keys=True) + "\n")
-    os.chmod(tmp, 0o666 & ~_umask())
+    public(tmp)
     os.replace(tmp, directory / MARKER)
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def _info(directory: Path, marker: dict) -> RunInfo:
+    files = marker.get("files", {})
     return RunInfo(
         directory,
         str(marker.get("kind", "output")),
         str(marker.get("run_id", "")),
         str(marker.get("bayescal_version", "?")),
-        dict(marker.get("files", {})),
+        {str(k): v for k, v in files.items() if isinstance(v, dict)} if isinstance(files, dict) else {},
     )
 
 
-# ------------------------------------------------------------------------- interrupts
-@contextlib.contextmanager
-def interrupts_held() -> Iterator[None]:
-    """Hold back SIGINT (Ctrl-C) for the block and act on it right after.
-
-    In the main thread the current handler is swapped for one that only notes the
-    signal; on leaving, the previous handler is put back and, if a signal came, called
-    (or ``KeyboardInterrupt`` raised, for the default handler).  Elsewhere the block
-    runs as it is (signals are only delivered to the main thread).
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-        if caught:
-            if callable(previous):
-                previous(signal.SIGINT, None)
-            elif previous != signal.SIG_IGN:
-                raise KeyboardInterrupt
-
-
-def committed() -> list[Path]:
-    """Output folders this process has put in place or added to, in order."""
-    return list(_COMMITTED)
-
-
-def discard_staging() -> None:
-    """Remove the staging folders of outputs still being written (an interrupted run leaves none)."""
-    for path in list(_STAGING):
-        shutil.rmtree(path, ignore_errors=True)
-        _STAGING.discard(path)
+def _current(marker: dict | None) -> bool:
+    return bool(marker) and marker.get("format") == FORMAT  # type: ignore[union-attr]
 
 
 # --------------------------------------------------------------------------- writing
@@ -211,12 +162,18 @@ def scratch_directory(beside: str | os.PathLike, name: str) -> Iterator[Path]:
     beside = Path(beside).resolve()
     beside.parent.mkdir(parents=True, exist_ok=True)
     scratch = Path(tempfile.mkdtemp(prefix=f".{beside.name}.{name}-", dir=beside.parent))
-    _STAGING.add(scratch)
     try:
-        yield scratch
+        with interrupts.staging(scratch):
+            yield scratch
     finally:
-        _STAGING.discard(scratch)
         shutil.rmtree(scratch, ignore_errors=True)
+
+
+_NOT_SEALED = (
+    "its record carries no seal of this account's (written by hand, by another account or machine, or by an "
+    "earlier bayescal), so bayescal cannot tell that it wrote these files; move or delete the folder yourself, "
+    "or give another --out"
+)
 
 
 def _foreign(directory: Path, marker: dict | None, kind: str) -> str | None:
@@ -231,7 +188,7 @@ def _foreign(directory: Path, marker: dict | None, kind: str) -> str | None:
                 "cannot tell its files from yours; move or delete it yourself, or give another --out"
             )
         return f"it holds files bayescal did not write ({_few(names)}); give a new or empty --out folder"
-    if marker.get("format") != FORMAT:
+    if not _current(marker):
         return (
             f"it was written by bayescal {marker.get('bayescal_version', '?')} in an older output format "
             f"({marker.get('format', 1)}, current {FORMAT}); move or delete it yourself, or give another --out"
@@ -247,6 +204,8 @@ def _foreign(directory: Path, marker: dict | None, kind: str) -> str | None:
     extra = sorted(set(present) - set(listed))
     if extra:
         return f"it holds files that run {info.run_id[:8]} did not write ({_few(extra)}); move them first"
+    if not all(sealed(info.run_id, rel, entry) for rel, entry in listed.items()):
+        return _NOT_SEALED
     changed = [rel for rel, p in present.items() if _differs(p, listed[rel])]
     if changed:
         return f"files of run {info.run_id[:8]} were changed after it wrote them ({_few(changed)}); move them first"
@@ -256,7 +215,7 @@ def _foreign(directory: Path, marker: dict | None, kind: str) -> str | None:
 def _differs(path: Path, entry: dict) -> bool:
     if path.stat().st_size != entry.get("size"):
         return True
-    return "sha256" in entry and _hash(path) != entry["sha256"]
+    return "sha256" in entry and sha256(path) != entry["sha256"]
 
 
 def _few(names: list[str]) -> str:
@@ -267,9 +226,9 @@ def check_output_dir(out_dir: str | os.PathLike, kind: str) -> Path:
     """Refuse an output folder before any work is done, unless bayescal may replace it.
 
     ``out_dir`` may be missing, an empty folder, or a folder that an earlier run of
-    the same ``kind`` wrote and nobody changed since (see the module docstring).
-    Anything else raises :class:`~bayescal.errors.OutputError`, which names the files
-    that stand in the way.
+    the same ``kind`` wrote and nobody changed since (see the module docstring); it may
+    not be, or hold, an input of the command (:func:`~.claims.reading`).  Anything else
+    raises :class:`~bayescal.errors.OutputError`, which names what stands in the way.
     """
     from bayescal.errors import OutputError
 
@@ -281,6 +240,11 @@ def check_output_dir(out_dir: str | os.PathLike, kind: str) -> Path:
         )
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"{out_dir} is a file; expected a folder for the outputs (give another --out)")
+    given = claims.input_inside(out_dir)
+    if given is not None:
+        raise OutputError(
+            f"refusing to replace {out_dir}: it holds {given}, an input of this command; give another --out"
+        )
     if out_dir.is_dir():
         why = _foreign(out_dir, read_marker(out_dir), kind)
         if why is not None:
@@ -289,7 +253,7 @@ def check_output_dir(out_dir: str | os.PathLike, kind: str) -> Path:
     while not parent.exists():
         parent = parent.parent
     if not parent.is_dir() or not os.access(parent, os.W_OK):
-        raise OutputError(f"cannot create {out_dir}: {parent} is not a writable folder")
+        raise OutputError(f"cannot create {out_dir}: {as_given(parent, out_dir)} is not a writable folder")
     return out_dir
 
 
@@ -322,75 +286,113 @@ def staged_directory(out_dir: str | os.PathLike, kind: str) -> Iterator[Stage]:
 
     out_dir = check_output_dir(out_dir, kind)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.staging.", dir=out_dir.parent))
-    _STAGING.add(staging)
+    staged = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.staging.", dir=out_dir.parent))
     run_id = uuid.uuid4().hex
-
-    stage = Stage(staging, run_id)
     old = None
     try:
-        with write_errors(out_dir):
-            yield stage
-        _checkpoint("staged")
-        marker = {
-            "format": FORMAT,
-            "kind": kind,
-            "run_id": run_id,
-            "bayescal_version": __version__,
-            "files": _listing(staging),
-        }
-        with write_errors(out_dir):
-            _write_marker(staging, marker)
-        os.chmod(staging, 0o777 & ~_umask())
-        with interrupts_held():
-            check_output_dir(out_dir, kind)  # nothing of the user's arrived while the run worked
-            if out_dir.exists():
-                old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old.", dir=out_dir.parent))
-                _STAGING.add(old)
-                os.replace(out_dir, old / "d")
-            _checkpoint("swap")
-            os.replace(staging, out_dir)
-            if not any(_inside(out_dir, s) for s in _STAGING):  # a folder inside another run's staging is not yet out
-                _COMMITTED.append(out_dir)
-        _checkpoint("committed")
+        with interrupts.staging(staged):
+            with write_errors(out_dir):
+                yield Stage(staged, run_id)
+            interrupts.checkpoint("staged")
+            marker = {
+                "format": FORMAT,
+                "kind": kind,
+                "run_id": run_id,
+                "bayescal_version": __version__,
+                "files": _listing(staged, run_id),
+            }
+            with write_errors(out_dir):
+                _write_marker(staged, marker)
+            public(staged, folder=True)
+            with interrupts.interrupts_held():
+                check_output_dir(out_dir, kind)  # nothing of the user's arrived while the run worked
+                if out_dir.exists():
+                    old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old.", dir=out_dir.parent))
+                    interrupts._STAGING.add(old)
+                    os.replace(out_dir, old / "d")
+                interrupts.checkpoint("swap")
+                os.replace(staged, out_dir)
+                interrupts.commit(out_dir)
+            interrupts.checkpoint("committed")
     finally:
-        _STAGING.discard(staging)
-        if staging.exists():
-            shutil.rmtree(staging, ignore_errors=True)
+        if staged.exists():
+            shutil.rmtree(staged, ignore_errors=True)
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
-            _STAGING.discard(old)
-    _checkpoint("cleaned")
+            interrupts._STAGING.discard(old)
+    interrupts.checkpoint("cleaned")
 
 
-def _inside(path: Path, folder: Path) -> bool:
-    return path.absolute().is_relative_to(folder.absolute())
+def member_refusal(target: Path, marker: dict) -> str | None:
+    """Why a single file may not be written at ``target`` in the output folder whose ``marker`` is given
+    (``None``: it may).
+
+    - a member of the run (``posterior.nc``, ``summary.json``, ...): never, ``--force`` or not, since
+      readers check the folder whole and a replaced member makes it unreadable;
+    - a file the run's list does not hold: when it exists, it is the user's;
+    - an addition (a report, a table): only by the same product, with its seal, unchanged since
+      (``--force``: changed or unsealed too).
+    """
+    info = _info(target.parent, marker)
+    entry = info.files.get(target.name)
+    where = f"{target.parent} ({info.describe()})"
+    if entry is None:
+        if os.path.lexists(target):
+            return f"refusing to overwrite {target}: the run that wrote {where} did not write it (move it first)"
+        return None
+    added = entry.get("added")
+    if added is None:
+        return (
+            f"refusing to overwrite {target}: it is part of {where}, which readers check whole; give a path "
+            "outside that folder (--force does not apply: replacing it would break the output)"
+        )
+    now = claims.product()
+    if added != now:
+        return (
+            f"refusing to overwrite {target}: it is the {added} output added to {where}, and this command writes "
+            f"a {now} output; give another name"
+        )
+    if claims.forced():
+        return None
+    if not sealed(info.run_id, target.name, entry):
+        return f"refusing to overwrite {target}: its entry in {where}'s record carries no seal of this account's " + (
+            "(move it, give another name, or --force)"
+        )
+    if target.is_file() and _differs(target, entry):
+        return (
+            f"refusing to overwrite {target}: it was changed after bayescal wrote it (move it, give another name, "
+            "or --force)"
+        )
+    return None
 
 
 def record_file(tmp: Path, target: Path) -> bool:
-    """Move the finished file ``tmp`` onto ``target``, entering it in the run's list when
-    ``target`` lies in a bayescal output folder; returns whether it did.
+    """Move the finished file ``tmp`` onto ``target``, entering it in the run's list as an addition of the
+    current product (:func:`~.claims.writing_as`) when ``target`` lies in a bayescal output folder;
+    returns whether it did.
 
-    A ``target`` that exists in such a folder but is not the run's own is refused
-    (:class:`~bayescal.errors.OutputError`): the user's file stays.  The move and the new
-    list are made with interrupts held back, so the folder is never left half-listed.
+    A ``target`` that :func:`member_refusal` refuses is refused (:class:`~bayescal.errors.OutputError`): the
+    file there stays.  The move and the new list are made with interrupts held back, so the folder is
+    never left half-listed.
     """
     from bayescal.errors import OutputError
 
     directory = target.parent
     marker = read_marker(directory)
-    if not marker or marker.get("format") != FORMAT:
+    if not _current(marker):
         return False
-    files = dict(marker.get("files", {}))
-    if target.exists() and target.name not in files:
-        raise OutputError(f"refusing to overwrite {target}: bayescal did not write it (move it first)")
-    files[target.name] = _entry(tmp, True)
-    os.chmod(tmp, 0o666 & ~_umask())  # a temporary file is private; the output gets the usual permissions
-    with interrupts_held():
+    assert marker is not None
+    why = member_refusal(target, marker)
+    if why is not None:
+        raise OutputError(why)
+    info = _info(directory, marker)
+    files = dict(info.files)
+    files[target.name] = _entry(tmp, info.run_id, target.name, added=claims.product())
+    public(tmp)
+    with interrupts.interrupts_held():
         os.replace(tmp, target)
         _write_marker(directory, {**marker, "files": files})
-        if directory not in _COMMITTED and not any(_inside(directory, s) for s in _STAGING):
-            _COMMITTED.append(directory)
+        interrupts.commit(directory)
     return True
 
 
@@ -404,7 +406,7 @@ def verify_output(
     output folder (a lone file cannot mix runs).  Raises
     :class:`~bayescal.errors.PosteriorError` naming the folder and what is wrong: no
     marker, an older format, another kind of output, a file in ``needs`` the run did not
-    write, or a listed file missing, truncated or replaced since the run.
+    write, or a member (or a needed addition) missing, truncated or replaced since the run.
     """
     from bayescal.errors import PosteriorError
 
@@ -421,7 +423,7 @@ def verify_output(
                 f"file; {verb} reads only folders of the current format: re-run the command that made it"
             )
         raise PosteriorError(f"{directory} is not a bayescal output folder (it has no {MARKER} record)")
-    if marker.get("format") != FORMAT:
+    if not _current(marker):
         raise PosteriorError(
             f"{directory} was written by bayescal {marker.get('bayescal_version', '?')} in an older output "
             f"format ({marker.get('format', 1)}, current {FORMAT}); re-run the command that made it"
@@ -440,7 +442,10 @@ def verify_output(
                 f"it {there}, so the folder is not one run's output: re-run, or give the folder of the run "
                 f"that wrote it"
             )
+    checked = set(info.members()) | set(needs)  # an addition edited later (a report) leaves the run whole
     for rel, entry in info.files.items():
+        if rel not in checked:
+            continue
         file = directory / rel
         if not file.is_file():
             raise PosteriorError(f"{file} is missing from {directory} ({info.describe()}): re-run")
@@ -450,7 +455,7 @@ def verify_output(
                 f"{file} is {size} bytes where {info.describe()} wrote {entry.get('size')}: it was truncated or "
                 "replaced after the run, so the folder mixes runs; re-run"
             )
-        if "sha256" in entry and _hash(file) != entry["sha256"]:
+        if "sha256" in entry and sha256(file) != entry["sha256"]:
             raise PosteriorError(
                 f"{file} differs from what {info.describe()} wrote: it was replaced or edited after the run, "
                 "so the folder mixes runs; re-run"
