@@ -127,7 +127,7 @@ def _steps_in_out(here, shared):
 def _design_with(key: str, value: str) -> Callable[[Path, Path], list[str]]:
     def setup(here, shared):
         text = (ROOT / "models" / "seed002_design.toml").read_text()
-        spec = (ROOT / "models" / "seed002_pan.toml").resolve()
+        spec = (ROOT / "models" / "seed002_tdi.toml").resolve()
         lines = [f'spec = "{spec}"' if line.startswith("spec =") else line for line in text.splitlines()]
         start = lines.index("[truth]")
         lines.insert(start + 1, f"{key} = {value}")
@@ -152,7 +152,11 @@ def _cube(here, shared):
 
 
 def _saturated_pairs(here, shared):
-    z = dict(np.load(Path(__file__).resolve().parents[1] / "tests" / "data" / "emva1288" / "crop128.npz"))
+    z = dict(
+        np.load(
+            Path(__file__).resolve().parents[1] / "tests" / "data" / "emva1288" / "refset001_ccd_12bit" / "crop128.npz"
+        )
+    )
     z = {k: v for k, v in z.items() if "stack" not in k}
     z["bright_pairs"] = np.full_like(z["bright_pairs"], 4095)
     np.savez(here / "flat.npz", **z)
@@ -186,7 +190,12 @@ def _survey_with_user_file(here, shared):
 
 CASES = [
     Case(
-        "member", "invert --dn into FIT/lsq.csv", lambda h, s: (_fit(h, s), _inv("FIT/lsq.csv"))[1], ("FIT",), 2, "part of"
+        "member",
+        "invert --dn into FIT/lsq.csv",
+        lambda h, s: (_fit(h, s), _inv("FIT/lsq.csv"))[1],
+        ("FIT",),
+        2,
+        "part of",
     ),
     Case(
         "member",
@@ -245,8 +254,8 @@ CASES = [
     Case("cause", "a ledger that is a folder", _record_folder, (), 2, "is not a file"),
     Case(
         "cause",
-        "a fleet design given as a camera spec",
-        lambda h, s: ["simulate", "--design", "seed000", "--model", "fleet_seed000_design", "--out", "t.csv"],
+        "a fleet design given as a camera's design",
+        lambda h, s: ["simulate", "--design", "fleet_seed000_design", "--out", "t.csv"],
         (),
         2,
         "(a shipped example)",

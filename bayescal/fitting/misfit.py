@@ -18,7 +18,9 @@ fit is checked for
   that change sign too rarely (Wald-Wolfowitz runs test): the response shape
   is not what the model can draw (e.g. a roll-off near full scale);
 - **runs along the measurement order** (``time_s``, else the row order):
-  a dark level or responsivity that drifted during the run.
+  a dark level or responsivity that drifted during the run;
+- **the channels of one frame together**: residuals of one frame's rows that share a sign more than
+  chance allows (:func:`frame_correlation`): an offset common to the frame (a jittering black level).
 
 When a check fires, the groups one channel makes with one setting (its gain,
 exposure, TDI or sphere level rows) say where the misfit sits, if one of them
@@ -40,7 +42,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-__all__ = ["MisfitThresholds", "misfit_checks", "group_residuals", "crossed_residuals"]
+from bayescal.model.components.frame_offset import frame_index
+
+__all__ = ["MisfitThresholds", "misfit_checks", "group_residuals", "crossed_residuals", "frame_correlation"]
 
 
 @dataclass(frozen=True)
@@ -145,6 +149,22 @@ def _located(crossed: pd.DataFrame, groups: pd.DataFrame, threshold: float) -> l
     return out
 
 
+def frame_correlation(frame: pd.DataFrame, resid_z: np.ndarray, usable: np.ndarray) -> float:
+    """Do the residuals of the rows of one frame (its channels, :func:`~bayescal.model.components.frame_offset.
+    frame_index`) move together?  ``sum_f sum_{i<j} z_i z_j / sqrt(sum_f n_f (n_f - 1) / 2)`` over the
+    frames' usable rows: under the model (independent standardised residuals) about Normal(0, 1); an offset
+    shared by a frame's channels makes it large and positive."""
+    idx = frame_index(frame)[usable]
+    zu = resid_z[usable]
+    n = np.bincount(idx)
+    total = np.bincount(idx, weights=zu)
+    squares = np.bincount(idx, weights=zu * zu)
+    pairs = float(np.sum(n * (n - 1) / 2.0))
+    if pairs < 8:
+        return 0.0
+    return float(np.sum((total**2 - squares) / 2.0) / np.sqrt(pairs))
+
+
 def runs_z(resid: np.ndarray) -> float:
     """Wald-Wolfowitz runs statistic of the residual signs (negative: fewer runs than chance)."""
     signs = resid > 0
@@ -217,6 +237,18 @@ def misfit_checks(
                 )
     info["runs_z"] = runs
     info.update(_drift_check(frame, z, usable, thresholds, problems, resid, signal_dn, terms_on))
+    info["frame_z"] = frame_correlation(frame, z, usable)
+    if info["frame_z"] > thresholds.group_z:
+        problems.append(
+            f"the residuals of the channels of one frame move together (z = {info['frame_z']:+.1f} over "
+            f"{int(np.sum(np.bincount(frame_index(frame)) >= 2))} frames): an offset common to the frame, not scatter "
+            "of each row"
+            + (
+                "; fit a black level that jitters from frame to frame ([frame_offset] enabled = true)"
+                if "frame_offset" not in terms_on
+                else ""
+            )
+        )
     crossed = crossed_residuals(frame, z, rel, lit)
     info["crossed_groups"] = crossed.drop(columns="name").to_dict("records")
     if problems:  # a fit that fails anyway: say where its misfit sits (never a reason to fail on its own)

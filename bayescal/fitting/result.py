@@ -25,6 +25,7 @@ from bayescal._version import __version__
 from bayescal.errors import FitFailedError, FitFailedWarning, PosteriorError
 from bayescal.fitting.holdout import holdout_checks
 from bayescal.fitting.misfit import MisfitThresholds, misfit_checks
+from bayescal.fitting.nuisance import nuisance_checks
 from bayescal.inference import registry as backends
 from bayescal.inference.diagnostics import Diagnostics
 from bayescal.inference.program import LOGLIK
@@ -258,6 +259,7 @@ def finish(model, program, draws, backend: str, seed: int, result, lsq, timings:
         diag = diag.with_check("identified", [NOT_IDENTIFIED], {"hessian_positive_definite": False})
     diag = _check_outliers(model, rows, diag)
     diag = _check_misfit(model, rows, post, diag)
+    diag = diag.with_check("nuisances", *nuisance_checks(model, post, _coords(model)))
     timings["checks"] = time.perf_counter() - t
     if spec.inference.holdout_check and result.positive_definite:
         t = time.perf_counter()
@@ -360,8 +362,8 @@ def misfit_of(model: CalibrationModel, rows: dict, excess_dn: np.ndarray | None)
 
 
 def drift_terms(model: CalibrationModel) -> frozenset[str]:
-    """The drift terms ``model`` has (their remedies are not suggested again)."""
-    on = {e.section for e in model.parts.effects if e.section in ("offset_drift", "stimulus_drift")}
+    """The drift terms ``model`` has, and a frame's offset (their remedies are not suggested again)."""
+    on = {e.section for e in model.parts.effects if e.section in ("offset_drift", "stimulus_drift", "frame_offset")}
     return frozenset(on | ({"dark.drift"} if model.spec.dark.drift else set()))
 
 

@@ -186,7 +186,7 @@ def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndar
     channel, exposure, gain, TDI stages and temperature; docs/architecture.md, section 2)."""
     ch = rows["channel"].to_numpy()
     t, g, m = (rows[k].to_numpy(dtype=float) for k in ("exposure_s", "gain", "tdi_stages"))
-    factor, added = _effects(truth, rows, spec)
+    factor, added = _effects(truth, rows.assign(stimulus=stimulus), spec)
     order = max(len(v) for v in truth.response.values())
     coef = np.zeros((len(rows), order))
     for c, values in truth.response.items():

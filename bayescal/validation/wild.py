@@ -17,7 +17,15 @@ and, from each family below, one member with its own parameters:
   (recorded in ``temperature_c``), its dark current doubling every 5-9 degC and each channel's black
   level moving by up to 1 DN per degC;
 - **crosstalk** between neighbouring colour channels (0-3 % of the neighbour's signal);
-- **dark frames**: interleaved with the sweeps, or all taken at the session's end.
+- **dark frames**: interleaved with the sweeps, or all taken at the session's end;
+- **stray light**: none; a light leak, a constant radiance (4-20 % of the lowest level, its own colour)
+  that reaches the sensor in every illuminated frame and in no dark frame;
+- **black level**: steady; or jittering from frame to frame by 0.7-2.5 DN, the same in the channels of one
+  frame;
+- **lamp colour**: constant; or tilting with the lamp's level (a lamp dimmed by its current: the red band
+  rises and the blue band falls, 1-4 % from the lowest level to the highest, systematically);
+- **thermometer**: on the die; or on the housing, leading the die, which follows it with a lag of a
+  tenth to a third of the session (where the temperature changes).
 
 Every frame is read as the mean of many pixels of many frames, each clipped to the ADC's range and
 quantised; the three channels of one frame share its ``time_s``.  The truth is what a calibration
@@ -33,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-__all__ = ["WildSession", "draw_session", "simulate_wild", "FAMILIES"]
+__all__ = ["WildSession", "draw_session", "simulate_wild", "FAMILIES", "CLASSIC"]
 
 CHANNELS = ("R", "G", "B")
 BITS = 12
@@ -51,7 +59,14 @@ FAMILIES = {
     "temperature": ("constant", "warming"),
     "crosstalk": ("none", "neighbour"),
     "darks": ("interleaved", "at the end"),
+    "stray": ("none", "leak"),
+    "black_level": ("steady", "jitter"),
+    "lamp_colour": ("constant", "tilt"),
+    "thermometer": ("on the die", "leading"),
 }
+#: the first seven families, whose sessions keep the draws they had before the last four were added
+#: (a seed draws the same camera and session from them as it did)
+CLASSIC = tuple(FAMILIES)[:7]
 
 
 @dataclass(frozen=True)
@@ -109,9 +124,32 @@ class WildSession:
         return 0.0
 
     def temperature(self, tau: float) -> float:
+        """The die's temperature at session fraction ``tau``."""
         if self.members["temperature"] == "warming":
-            return REFERENCE_C + self.params["warming_c"] * -np.expm1(-tau / 0.3) / -np.expm1(-1.0 / 0.3)
+            if self.members["thermometer"] == "leading":  # the die follows the housing with a lag
+                return self._housing(tau - self.params["lag"])
+            return self._housing(tau)
         return REFERENCE_C
+
+    def recorded_temperature(self, tau: float) -> float:
+        """What the thermometer reads at ``tau``: the die's, or the housing's, which leads it."""
+        return self._housing(tau) if self.members["temperature"] == "warming" else REFERENCE_C
+
+    def _housing(self, tau: float) -> float:
+        tau = max(tau, 0.0)
+        return REFERENCE_C + self.params["warming_c"] * -np.expm1(-tau / 0.3) / -np.expm1(-1.0 / 0.3)
+
+    def lamp_colour(self, level: int) -> np.ndarray:
+        """Each channel's radiance over the lamp's calibration at sphere level ``level``: 1, or tilting with
+        the level (red up, blue down, from the lowest level to the highest)."""
+        if self.members["lamp_colour"] != "tilt":
+            return np.ones(3)
+        u = np.log(LEVELS[level] / LEVELS[0]) / np.log(LEVELS[-1] / LEVELS[0]) - 0.5
+        return 1.0 + self.params["tilt"] * u * np.array([1.0, 0.0, -1.0])
+
+    def stray(self) -> np.ndarray:
+        """The radiance a light leak adds to every illuminated frame, per channel (0 without)."""
+        return self.params["leak"] if self.members["stray"] == "leak" else np.zeros(3)
 
     def dark_dn(self, c: int, t: float, g: float, temp: float) -> float:
         p = self.params
@@ -142,13 +180,15 @@ class WildSession:
         return pd.DataFrame({"channel": CHANNELS, "A0": a0, "A1": a1})
 
 
-def draw_session(seed: int, departures: int | None = None) -> WildSession:
-    """A camera and a session (``seed``): ``departures`` families (default: one or two, drawn) depart, each
-    by a member drawn at random among its departures; the others keep their first member."""
+def draw_session(seed: int, departures: int | None = None, families: tuple[str, ...] = CLASSIC) -> WildSession:
+    """A camera and a session (``seed``): ``departures`` of ``families`` (default: one or two, drawn; the
+    families: :data:`CLASSIC`, or every one of :data:`FAMILIES`) depart, each by a member drawn at random
+    among its departures; the others keep their first member."""
     rng = np.random.default_rng([seed, 0x5EED])
     n = int(rng.integers(1, 3)) if departures is None else departures
-    departing = set(rng.choice(list(FAMILIES), size=n, replace=False))
-    members = {k: str(rng.choice(v[1:])) if k in departing else v[0] for k, v in FAMILIES.items()}
+    departing = set(rng.choice(list(families), size=n, replace=False))
+    members = {k: str(rng.choice(v[1:])) if k in departing else v[0] for k, v in FAMILIES.items() if k in families}
+    members |= {k: v[0] for k, v in FAMILIES.items() if k not in families}
     p: dict = {}
     if members["rolloff"] == "knee":
         p |= {"knee": rng.uniform(1.1, 2.0) * FULL_SCALE, "sharpness": rng.uniform(2.0, 8.0)}
@@ -168,6 +208,22 @@ def draw_session(seed: int, departures: int | None = None) -> WildSession:
         }
     if members["crosstalk"] == "neighbour":
         p["crosstalk"] = rng.uniform(0.0, 0.03)
+    if members["stray"] == "leak":
+        p["leak"] = LEVELS[0] * rng.uniform(0.04, 0.2) * rng.uniform(0.5, 1.5, 3)
+    if members["black_level"] == "jitter":
+        p["jitter_dn"] = rng.uniform(0.7, 2.5)
+    if members["lamp_colour"] == "tilt":
+        p["tilt"] = rng.uniform(0.01, 0.04)
+    if members["thermometer"] == "leading":
+        p["lag"] = rng.uniform(0.1, 0.33)
+        if members["temperature"] != "warming":  # a thermometer that leads a constant temperature reads it
+            members["temperature"] = "warming"
+    if members["temperature"] == "warming" and "warming_c" not in p:
+        p |= {
+            "warming_c": rng.uniform(3.0, 10.0),
+            "doubling_c": rng.uniform(5.0, 9.0),
+            "bias_per_c": rng.uniform(-1.0, 1.0, 3),
+        }
     responsivity = np.array([rng.uniform(45, 80), rng.uniform(22, 40), rng.uniform(13, 25)])
     base = rng.uniform(30.0, 70.0)
     offset = {g: base * g + rng.normal(0.0, 2.0, 3) for g in GAINS}
@@ -202,11 +258,15 @@ def _plan(darks_at_end: bool) -> list[tuple]:
 
 
 def simulate_wild(
-    seed: int, departures: int | None = None, n_frames: int = 20, n_pixels: int = 256
+    seed: int,
+    departures: int | None = None,
+    n_frames: int = 20,
+    n_pixels: int = 256,
+    families: tuple[str, ...] = CLASSIC,
 ) -> tuple[pd.DataFrame, WildSession]:
     """The measurement table a lab would write for the session drawn by ``seed`` (see :func:`draw_session`),
     and the session."""
-    session = draw_session(seed, departures)
+    session = draw_session(seed, departures, families)
     session.params["n_pixels"] = n_pixels  # the region the truth's response is the mean of
     if n_pixels > session.prnu.shape[1]:
         raise ValueError(f"n_pixels = {n_pixels}; the simulated region has {session.prnu.shape[1]} pixels")
@@ -218,9 +278,14 @@ def simulate_wild(
         temp = session.temperature(tau)
         nominal = 0.0 if li is None else LEVELS[li]
         true = nominal * session.sphere_scale * (1.0 + (0.0 if li is None else session.level_error[li]))
-        signal = session.signal_dn(np.full(3, true * session.lamp(tau)), t, g) if li is not None else np.zeros(3)
+        if li is None:
+            signal = np.zeros(3)
+        else:
+            radiance = true * session.lamp(tau) * session.lamp_colour(li) + session.stray()
+            signal = session.signal_dn(radiance, t, g)
+        jitter = session.params["jitter_dn"] * rng.standard_normal() if "jitter_dn" in session.params else 0.0
         for c, channel in enumerate(CHANNELS):
-            dark = session.dark_dn(c, t, g, temp) + session.offset_drift(tau)
+            dark = session.dark_dn(c, t, g, temp) + session.offset_drift(tau) + jitter
             pixels = signal[c] * session.prnu[c, :n_pixels]  # the same pixels in every frame
             electrons = np.maximum(pixels, 0.0) * 4.0 / g  # 4 electrons per DN at gain 1
             sd = np.sqrt((3.0 * g) ** 2 + electrons * (g / 4.0) ** 2)  # read noise 3 DN at gain 1, and shot noise
@@ -237,7 +302,7 @@ def simulate_wild(
                     "n_frames": n_frames,
                     "n_pixels": n_pixels,
                     "time_s": 25.0 * i,
-                    "temperature_c": round(temp, 2),
+                    "temperature_c": round(session.recorded_temperature(tau), 2),
                 }
             )
     return pd.DataFrame(rows), session

@@ -29,6 +29,7 @@ from bayescal.model.components.base import (
 )
 from bayescal.model.components.dark import Dark, DarkSpec, DarkTerm
 from bayescal.model.components.drift import OffsetDrift, StimulusDrift
+from bayescal.model.components.frame_offset import FrameOffset
 from bayescal.model.components.glow import Glow
 from bayescal.model.components.noise import Noise, NoiseSpec
 from bayescal.model.components.offset_temperature import OffsetTemperature
@@ -39,6 +40,7 @@ from bayescal.model.components.scatter import RelativeScatter
 from bayescal.model.components.settings import SettingFactors, SettingsSpec
 from bayescal.model.components.shutter import ShutterOffset
 from bayescal.model.components.sphere import Sphere, SphereSpec
+from bayescal.model.components.stray import StrayLight
 
 __all__ = [
     "CORE",
@@ -84,6 +86,8 @@ EFFECTS: tuple[type[Effect], ...] = (
     StimulusDrift,
     OffsetDrift,
     RelativeScatter,
+    StrayLight,
+    FrameOffset,
 )
 
 

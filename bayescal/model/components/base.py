@@ -51,10 +51,39 @@ __all__ = [
     "FactorTerm",
     "NoiseEffect",
     "NoiseTerm",
+    "Nuisance",
     "OffsetEffect",
     "OffsetTerm",
     "StimulusFactor",
 ]
+
+
+@dataclass(frozen=True)
+class Nuisance:
+    """A sampled site that stands for an imperfection of the bench or the camera the user stated a prior
+    for (a sphere level's error, a setting's departure from its label, a drift), checked after a fit
+    against that prior (:mod:`bayescal.fitting.nuisance`): a posterior far out in its prior's tail has
+    absorbed a misfit rather than measured the imperfection.
+
+    Attributes
+    ----------
+    sd : float or array
+        The prior's standard deviation about 0, in the site's own units (broadcast over its elements).
+    what : str
+        What one element is, in words, with ``{}`` where the element's label goes.
+    dims : tuple of str
+        The coordinates (:func:`bayescal.fitting.result` coords) that label the site's elements.
+    size : float or array
+        Multiplies the site's value into the size messages state (``level_z`` times its level's sigma).
+    unit : str
+        The unit of that size: ``"%"`` (a relative size, shown in per cent) or a unit's name.
+    """
+
+    sd: Any
+    what: str
+    dims: tuple[str, ...] = ()
+    size: Any = 1.0
+    unit: str = "%"
 
 
 @dataclass(frozen=True)
@@ -86,6 +115,11 @@ class Component(ABC):
     @abstractmethod
     def describe(self) -> str:
         """One line saying what this component contributes to the model."""
+
+    def nuisances(self, level_sigma: np.ndarray) -> Mapping[str, Nuisance]:
+        """Its sampled sites that stand for an imperfection with a stated prior (``level_sigma``: each
+        sphere level's relative sd), checked after a fit against that prior (empty: none)."""
+        return {}
 
     def physical(self, draws: Mapping[str, np.ndarray], ctx: Context) -> dict[str, np.ndarray]:
         """Reported quantities from the scaled draws (leading dims chain, draw)."""

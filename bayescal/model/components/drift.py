@@ -46,7 +46,7 @@ import numpy as np
 
 from bayescal.errors import SpecError, TableError
 from bayescal.io.checks import require_spread
-from bayescal.model.components.base import Effect, FactorEffect, OffsetEffect
+from bayescal.model.components.base import Effect, FactorEffect, Nuisance, OffsetEffect
 
 __all__ = [
     "StimulusDrift",
@@ -230,6 +230,12 @@ class _Drift(Effect):
 
     def coords(self) -> dict[str, list]:
         return {f"{self.section}_term": list(range(1, self.spec.terms + 1))}
+
+    def nuisances(self, level_sigma) -> dict[str, Nuisance]:
+        """The drift's standardised coefficients, against its prior scale."""
+        what = f"term {{}} of the drift {self.place}"
+        unit = "%" if isinstance(self, FactorEffect) else self.unit
+        return {self.z_site: Nuisance(1.0, what, (f"{self.section}_term",), self.scale, unit)}
 
     def describe(self) -> str:
         return (

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bayescal.model.components.base import StimulusFactor
+from bayescal.model.components.base import Nuisance, StimulusFactor
 
 __all__ = ["SettingFactors", "SettingsSpec", "SettingFactorDraws", "KINDS", "SETTING_ATTRIBUTE", "SPREAD_PRIOR_SHAPE"]
 
@@ -142,6 +142,15 @@ class SettingFactors(StimulusFactor):
             per_row.append(self.log_factors(kind, logf, jnp)[getattr(data, KINDS[kind][1])])
         gain = jnp.exp(per_row[active.index("gain")]) if "gain" in active else 1.0
         return self.factor(jnp.stack(per_row, axis=-1), jnp), gain
+
+    def nuisances(self, level_sigma) -> dict[str, Nuisance]:
+        """Each measured setting's log factor, against the lab's tolerance."""
+        return {
+            f"{kind}_log": Nuisance(
+                getattr(self.spec, KINDS[kind][2]), f"the effective factor of {kind} setting {{}}", (f"{kind}_free",)
+            )
+            for kind in self.active()
+        }
 
     def describe(self) -> str:
         active, sizes = self.active(), dict(self.sizes)

@@ -25,7 +25,7 @@ from typing import Literal
 import numpy as np
 
 from bayescal.errors import SpecError
-from bayescal.model.components.base import FactorEffect
+from bayescal.model.components.base import FactorEffect, Nuisance
 
 __all__ = ["ShutterOffset", "ShutterSpec", "ShutterTerm"]
 
@@ -85,6 +85,10 @@ class ShutterOffset(FactorEffect):
         # sampled in milliseconds, so the site is O(1) beside the model's other scaled parameters
         offset_ms = numpyro.sample("shutter_offset_ms", dist.Normal(0.0, 1e3 * self.spec.offset_prior_s))
         return self.forward(1e-3 * offset_ms, data.extra[INPUT], self.reference_s, jnp)
+
+    def nuisances(self, level_sigma) -> dict[str, Nuisance]:
+        sd = 1e3 * self.spec.offset_prior_s
+        return {"shutter_offset_ms": Nuisance(sd, "the shutter's integration-time offset{}", unit="ms")}
 
     def describe(self) -> str:
         return f"shutter: integration-time offset (prior sd {1e3 * self.spec.offset_prior_s:g} ms)"

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from bayescal.model.components.base import StimulusFactor
+from bayescal.model.components.base import Nuisance, StimulusFactor
 
 __all__ = ["Sphere", "SphereSpec", "fold_common_scale"]
 
@@ -87,6 +87,18 @@ class Sphere(StimulusFactor):
             w = jnp.concatenate([self.spec.channel_level_rel * w, jnp.zeros((1, self.n_channels))])
             err = err + w[data.level, data.channel]
         return self.factor(err)
+
+    def nuisances(self, level_sigma) -> dict[str, Nuisance]:
+        """The level errors (standard normal, non-centred), each as a fraction of its level's stimulus."""
+        out = {}
+        if self.per_level and self.n_levels:
+            sigma = np.asarray(level_sigma, dtype=float)[: self.n_levels]
+            out["level_z"] = Nuisance(1.0, "the radiance error of sphere level {}", ("level",), sigma)
+        if self.per_channel:
+            out["level_w"] = Nuisance(
+                1.0, "the lamp's error at level {} (per channel)", ("level", "channel"), self.spec.channel_level_rel
+            )
+        return out
 
     def describe(self) -> str:
         return (
