@@ -27,20 +27,22 @@ import numpy as np
 import pandas as pd
 
 import bayescal as bc
-from bayescal.validation.wild import FAMILIES, simulate_wild
+from bayescal.validation.wild import CLASSIC, FAMILIES, simulate_wild
 
 RESULTS = Path(__file__).parent / "results"
 
 
-def one(seed: int, backend: str) -> dict:
-    frame, session = simulate_wild(seed)
+def one(seed: int, backend: str, strategy: str = "search", families: tuple[str, ...] = CLASSIC) -> dict:
+    frame, session = simulate_wild(seed, families=families)
     truth = session.truth().set_index("channel")
     spec = bc.load_spec("seed000")
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            fit, found = bc.fit_diagnosed(bc.MeasurementTable.from_frame(frame), spec, backend, seed=seed)
+            fit, found = bc.fit_diagnosed(
+                bc.MeasurementTable.from_frame(frame), spec, backend, seed=seed, strategy=strategy
+            )
         except bc.BayescalError as exc:
             return {"seed": seed, "departures": session.label(), "verdict": "error", "message": str(exc)}
     row = {
@@ -82,7 +84,9 @@ def summary(df: pd.DataFrame) -> str:
     lines = [
         "# Cameras nobody described (independent simulator, random departures)",
         "",
-        f"{len(df)} datasets, shipped seed-000 spec, {df.get('backend', pd.Series(['?'])).iloc[0]} with the diagnosis.",
+        f"{len(df)} datasets ({df.get('families', pd.Series(['classic'])).iloc[0]} families), shipped seed-000 spec, "
+        f"{df.get('backend', pd.Series(['?'])).iloc[0]}, "
+        f"{df.get('strategy', pd.Series(['search'])).iloc[0]} when the spec does not describe the data.",
         "",
         "| measure | value |",
         "|---|---|",
@@ -119,7 +123,10 @@ def main() -> None:
     ap.add_argument("--backend", default="laplace")
     ap.add_argument("--first", type=int, default=0)
     ap.add_argument("--out", default=str(RESULTS / "departures"))
+    ap.add_argument("--strategy", default="search", choices=("search", "flexible"))
+    ap.add_argument("--families", default="classic", choices=("classic", "all"))
     args = ap.parse_args()
+    families = CLASSIC if args.families == "classic" else tuple(FAMILIES)
     checkpoint = Path(args.out + ".jsonl")
     done = {}
     if checkpoint.exists():
@@ -128,7 +135,11 @@ def main() -> None:
         for seed in range(args.first, args.first + args.n):
             if seed in done:
                 continue
-            row = one(seed, args.backend) | {"backend": args.backend}
+            row = one(seed, args.backend, args.strategy, families) | {
+                "backend": args.backend,
+                "strategy": args.strategy,
+                "families": args.families,
+            }
             done[seed] = row
             with checkpoint.open("a") as f:
                 f.write(json.dumps(row) + "\n")

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,17 +27,23 @@ import pandas as pd
 from bayescal.characterization.emva1288 import characterize
 from bayescal.io.emva import load_steps
 from bayescal.report.text import markdown_table
-from bayescal.validation.lowbit import LowBitSensor, random_lowbit, simulate_lowbit
+from bayescal.validation.lowbit import LowBitSensor, random_lowbit, real_8bit, simulate_lowbit
 
 OUT = Path(__file__).resolve().parent / "results"
 
 
-def run(n: int, seed: int) -> pd.DataFrame:
+def run(n: int, seed: int, concave: int = 0) -> pd.DataFrame:
+    """``n`` linear sensors (the default 8-bit one first), then ``concave`` sensors with a V/Q knee (the real
+    8-bit sensor first, :func:`~bayescal.validation.lowbit.real_8bit`), drawn from a generator of their own."""
     rng = np.random.default_rng(seed)
+    bent = np.random.default_rng([seed, 0xBE7])
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for i in range(n):
-            sensor = LowBitSensor() if i == 0 else random_lowbit(rng)
+        for i in range(n + concave):
+            if i < n:
+                sensor = LowBitSensor() if i == 0 else random_lowbit(rng)
+            else:
+                sensor = real_8bit() if i == n else _knee(random_lowbit(bent), bent)
             layout = "illumination" if i % 3 == 2 else "exposure"
             table, truth = simulate_lowbit(sensor, layout=layout, seed=seed * 100_000 + i)
             path = Path(tmp) / "steps.csv"
@@ -47,6 +54,8 @@ def run(n: int, seed: int) -> pd.DataFrame:
                 "sensor": i,
                 "bits": sensor.bits,
                 "layout": layout,
+                "concave": bool(np.isfinite(sensor.knee_e)),
+                "module": res.module,
                 "sigma_y_dark_dn": sensor.sigma_y_dark,
                 "dsnu_dn": sensor.dsnu_dn,
                 "problems": len(res.problems),
@@ -64,11 +73,36 @@ def run(n: int, seed: int) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _knee(sensor: LowBitSensor, rng: np.random.Generator) -> LowBitSensor:
+    """``sensor`` with a V/Q knee that takes 10-30 % off the conversion gain at full scale."""
+    full_q = (sensor.full_scale - sensor.offset_dn) / sensor.k
+    drop = rng.uniform(0.10, 0.30)  # the slope at full scale is (1 - drop) of the small-signal one
+    return replace(sensor, knee_e=full_q / (1.0 / np.sqrt(1.0 - drop) - 1.0))
+
+
+def concave_summary(df: pd.DataFrame) -> str:
+    """On the concave sensors: K and QE flagged not determinable (General), covered, or tight and wrong."""
+    part = df[df.concave]
+    if not len(part):
+        return ""
+    general = part["module"] == "General"
+    covered = ~general & part["K_covered"] & part["QE_covered"]
+    wrong = ~general & ~covered
+    first = part.iloc[0]
+    return (
+        f"\n{len(part)} concave sensors (a V/Q knee taking 10-30 % off the conversion gain at full scale; the first "
+        "is the real 8-bit sensor's features, `real_8bit`): K and QE reported as not determinable (Release 4 "
+        f"General) on {int(general.sum())}, covering the small-signal truth on {int(covered.sum())}, tight and wrong "
+        f"on {int(wrong.sum())}.  The real 8-bit sensor's features (small-signal K 0.0245 DN/e-, QE 55 %): module "
+        f"{first.module}.\n"
+    )
+
+
 def summary(df: pd.DataFrame) -> pd.DataFrame:
     out = []
     for name, part in [("all", df), *((f"{b}-bit", df[df.bits == b]) for b in (8, 10))]:
         for q in ("K", "QE"):
-            cover = part[f"{q}_covered"].mean()
+            cover = (part[f"{q}_covered"] & (part["module"] == "Linear")).mean()
             rel = (part[f"{q}_median"] / part[f"{q}_true"] - 1).abs()
             std = (part[f"{q}_standard"] / part[f"{q}_true"] - 1).abs()
             width = ((part[f"{q}_hi"] - part[f"{q}_lo"]) / part[f"{q}_true"]).median()
@@ -92,13 +126,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sensors", type=int, default=300)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--concave", type=int, default=60, help="sensors with a V/Q knee after the linear ones")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    df = run(args.sensors, args.seed)
+    df = run(args.sensors, args.seed, args.concave)
     elapsed = time.perf_counter() - t0
     OUT.mkdir(exist_ok=True)
     df.to_csv(OUT / "emva_lowbit.csv", index=False, float_format="%.6g")
-    s = summary(df)
+    s = summary(df[~df.concave])
     first = df.iloc[0]
     text = (  # no title: the docs include the file as it is (docs/validation/index.md)
         f"{args.sensors} simulated 8- and 10-bit sensors (`benchmarks/emva_lowbit.py --sensors {args.sensors} "
@@ -107,7 +142,9 @@ def main() -> None:
         + markdown_table(s)
         + "\n\nThe default 8-bit sensor (K 0.0206 DN/e-, QE 55 %, dark noise 0.33 DN at a half code): "
         f"K {first.K_median:.4g} [{first.K_lo:.4g}, {first.K_hi:.4g}] (standard {first.K_standard:.4g}), "
-        f"QE {first.QE_median:.3g} % [{first.QE_lo:.3g}, {first.QE_hi:.3g}] (standard {first.QE_standard:.3g} %).\n"
+        f"QE {first.QE_median:.3g} % [{first.QE_lo:.3g}, {first.QE_hi:.3g}] (standard {first.QE_standard:.3g} %).  "
+        f"Linear sensors taken for General (a false alarm): {int((df[~df.concave].module == 'General').sum())}.\n"
+        + concave_summary(df)
     )
     (OUT / "emva_lowbit.md").write_text(text)
     print(text)

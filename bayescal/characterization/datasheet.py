@@ -210,9 +210,10 @@ def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
     """Write the datasheet page ``out`` (HTML, figures embedded; written atomically)."""
     out = Path(out)
     quantities = res.table.copy()
-    verdict = {True: "compatible", False: "NOT compatible", None: "not determined (one dark exposure time)"}[
-        res.dark_current_compatible
-    ]
+    undetermined = (
+        "not determinable (no system gain K)" if res.module == "General" else "not determined (one dark exposure time)"
+    )
+    verdict = {True: "compatible", False: "NOT compatible", None: undetermined}[res.dark_current_compatible]
     figures = [
         ("Photon transfer", _photon_transfer(res)),
         ("Sensitivity", _sensitivity(res)),
@@ -234,6 +235,20 @@ def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
     if res.problems:
         items = "".join(f"<li>{escape(p)}</li>" for p in res.problems)
         body.append(f'<div class="failed">IMPLAUSIBLE RESULTS<ul>{items}</ul></div>')
+    change = res.ptc.get("change", float("nan"))
+    if res.module == "General":
+        body.append(
+            '<div class="failed">EMVA 1288 RELEASE 4 LINEAR DOES NOT APPLY: the photon transfer curve is not straight '
+            f"over its fit range (its slope changes by {change:+.0%} from the lower to the upper half), so K, QE and "
+            "what needs them are not determinable; the General module's quantities are reported.</div>"
+        )
+    else:
+        body.append(
+            f"<p>EMVA 1288 Release 4 Linear applies: the photon transfer curve is straight over its fit range (its "
+            f"slope changes by {change:+.1%} from the lower to the upper half).</p>"
+        )
+    for note in res.notes:
+        body.append(f"<p><b>Note:</b> {escape(note)}</p>")
     body += [
         "<h2>Quantities</h2>",
         table(_shown(quantities)),

@@ -83,11 +83,22 @@ class Characterization:
     stack: dict = field(default_factory=dict)
     #: what the layout of the set made the characterisation assume, in words (printed and on the datasheet)
     notes: tuple[str, ...] = ()
+    #: the photon transfer curve's straightness over its fit range (:func:`_ptc_linearity`): ``linear`` decides
+    #: whether EMVA 1288 Release 4 Linear applies (K, QE and what needs them are reported)
+    ptc: dict = field(default_factory=dict)
+
+    @property
+    def module(self) -> str:
+        """The Release 4 module the camera's quantities follow: "Linear", or "General" where the photon transfer
+        curve is not straight."""
+        return "Linear" if self.ptc.get("linear", True) else "General"
 
     @property
     def problems(self) -> list[str]:
         """Results no sensor can have, each with what to check (empty: plausible)."""
-        out = []
+        out: list[str] = []
+        if self.module == "General":  # K and what needs it are not determinable, and say so in their notes
+            return out
         for name, value in (("K", self.standard.get("K")), ("QE", self.standard.get("QE"))):
             if value is None or not np.isfinite(value) or value <= 0:
                 out.append(f"{name} = {value}: not a positive number; check the photon counts and the dark pairs")
@@ -119,6 +130,8 @@ class Characterization:
             "source": self.source,
             "ranges": self.ranges,
             "dark_current_compatible": self.dark_current_compatible,
+            "module": self.module,
+            "photon_transfer_linearity": self.ptc,
             "notes": list(self.notes),
             "quantities": self.table.to_dict("records"),
         }
@@ -435,6 +448,7 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
     what = f"the photon transfer curve (K) {where}" + (" with half a DN of noise or more" if rounding else "")
     k_curve = _line_posterior(sig[kept], dvar[kept], w_var[kept], n_draws, rng, powers=powers, what=what)
     k = k_curve[:, powers.index(1)]
+    ptc = _ptc_linearity(sig[kept], dvar[kept], w_var[kept], n_draws, rng)
     # the means' step-to-step error: the source's stability (relative to the signal) and, at the darkest
     # steps, the means' own noise and rounding (a floor): weighted 1 / (s^2 + rho), rho from the data, so
     # a step reading a fraction of a DN cannot decide R alone (1 / s^2 gave QE 1.6 % for 55 % on a real
@@ -473,7 +487,19 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
     draws = _quantities(k, resp, s2_dark, i_mean, i_var, point["u_p_sat"], le_min, le_max)
     if steps.stack:
         draws.update(_nonuniformity(steps.stack, k, *_spatial_draws(steps.stack, n_pix, n_draws, rng)))
-    determined = _dark_exposures(steps) >= 2
+    notes = {}
+    if not ptc["linear"]:  # Release 4 Linear does not apply: no K, nor what needs one (Release 4 General)
+        why = (
+            f"not determinable: the photon transfer curve is not straight over its fit range (its slope changes by "
+            f"{ptc['change']:+.0%} [{ptc['interval'][0]:+.0%}, {ptc['interval'][1]:+.0%}] from the lower to the "
+            "upper half): EMVA 1288 Release 4 Linear does not apply (the General module's quantities are reported)"
+        )
+        for name in NEEDS_K:
+            if name in draws:
+                draws[name] = np.full(n_draws, np.nan)
+                notes[name] = why
+        point = point | {name: np.nan for name in NEEDS_K if name in point} | _general(c, r, point)
+    determined = _dark_exposures(steps) >= 2 and ptc["linear"]
     if determined:
         lo, hi = np.quantile(draws["dark_current_difference"], [0.025, 0.975])
         compatible = bool(lo <= 0.0 <= hi)
@@ -509,7 +535,7 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
                 "median": q[1],
                 "q2.5": q[0],
                 "q97.5": q[2],
-                "note": "" if np.all(np.isfinite(d)) else _undetermined(name),
+                "note": "" if np.all(np.isfinite(d)) else notes.get(name, _undetermined(name)),
             }
         )
     curves = c.assign(signal=sig, var_signal=dvar)
@@ -526,7 +552,27 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
         dark,
         steps.stack,
         _layout_notes(steps),
+        ptc,
     )
+
+
+def _general(c: pd.DataFrame, r: dict, point: dict) -> dict:
+    """EMVA 1288 Release 4 General's point values, which need no photon transfer: the signal-to-noise ratio
+    measured at every step, ``(mu_y - mu_dark) / s_y``; its largest value below saturation; the photons at
+    which it reaches 1 (the absolute sensitivity threshold, interpolated in log-log); the dynamic range."""
+    sat = r["index_u_ysat"]
+    signal = (c["mu_y"] - c["mu_dark"]).to_numpy()[: sat + 1]
+    photons = c["photons"].to_numpy()[: sat + 1]
+    snr = signal / np.sqrt(np.maximum(c["s2_y"].to_numpy()[: sat + 1], 1e-300))
+    out = {"SNR_max": float(np.max(snr))}
+    above = np.flatnonzero((snr >= 1.0) & (photons > 0))
+    if above.size and above[0] > 0 and snr[above[0] - 1] > 0 and photons[above[0] - 1] > 0:
+        i = above[0]
+        x = np.log([photons[i - 1], photons[i]])
+        y = np.log([snr[i - 1], snr[i]])
+        out["u_p_min"] = float(np.exp(x[0] + (0.0 - y[0]) * (x[1] - x[0]) / (y[1] - y[0])))
+        out["DR"] = float(point["u_p_sat"] / out["u_p_min"])
+    return out
 
 
 def _layout_notes(steps: Steps) -> tuple[str, ...]:
@@ -540,6 +586,45 @@ def _layout_notes(steps: Steps) -> tuple[str, ...]:
             "current adds to the signal; measure dark pairs at each exposure to subtract it",
         )
     return ()
+
+
+#: the Linear module's photon transfer must be straight over its fit range: a slope that changes by more than
+#: this fraction between the range's lower and upper half (and significantly) makes K not determinable
+PTC_LINEARITY_TOL = 0.10
+#: the quantities that need a system gain K (EMVA 1288 Release 4 Linear); the General module reports the rest
+NEEDS_K = (
+    "K",
+    "QE",
+    "sigma_d",
+    "dark_current_mean",
+    "dark_current_var",
+    "dark_current_difference",
+    "u_e_sat",
+    "u_p_min",
+    "DR",
+    "SNR_max",
+    "DSNU1288",
+)
+
+
+def _ptc_linearity(signal: np.ndarray, var: np.ndarray, weights: np.ndarray, n: int, rng) -> dict:
+    """Is the photon transfer curve straight over its fit range (EMVA 1288 Release 4 Linear, its validity)?
+    Straight lines through the lower and the upper half of the steps: the posterior of the upper half's slope
+    over the lower half's, less 1 (``change``), and whether it departs from 0 by more than
+    :data:`PTC_LINEARITY_TOL` with its 95 % interval clear of 0 (``linear``)."""
+    order = np.argsort(signal)
+    half = order.size // 2
+    if half < 3:
+        return {"linear": True, "change": np.nan, "interval": [np.nan, np.nan], "steps": int(order.size)}
+    lower, upper = order[:half], order[half:]
+    slopes = [
+        _line_posterior(signal[i], var[i], weights[i], n, rng, what="half of the photon transfer curve")[:, 0]
+        for i in (lower, upper)
+    ]
+    change = slopes[1] / slopes[0] - 1.0
+    lo, mid, hi = np.quantile(change, [0.025, 0.5, 0.975])
+    bent = abs(mid) > PTC_LINEARITY_TOL and (lo > 0 or hi < 0)
+    return {"linear": not bent, "change": float(mid), "interval": [float(lo), float(hi)], "steps": int(order.size)}
 
 
 def _undetermined(name: str) -> str:

@@ -28,12 +28,21 @@ def cmd_characterize(args) -> int:
         write_datasheet(res, staged("datasheet.html"))
     print(f"EMVA 1288 characterisation of {args.input} (standard point estimate | posterior median [95 %]):")
     print(res.table.to_string(index=False, float_format="%.5g"))
-    verdict = {True: "compatible", False: "NOT compatible", None: "not determined (one dark exposure time)"}[
-        res.dark_current_compatible
-    ]
+    undetermined = (
+        "not determinable (no system gain K)" if res.module == "General" else "not determined (one dark exposure time)"
+    )
+    verdict = {True: "compatible", False: "NOT compatible", None: undetermined}[res.dark_current_compatible]
     print(f"dark current from the mean and from the variance: {verdict} (95 % interval of their difference)")
     for note in res.notes:
         print(f"NOTE: {note}")
+    change = res.ptc.get("change", float("nan"))
+    if res.module == "General":
+        print(
+            f"EMVA 1288 RELEASE 4 LINEAR DOES NOT APPLY: the photon transfer curve's slope changes by {change:+.0%} "
+            "over its fit range; K, QE and what needs them are not determinable (General module)"
+        )
+    else:
+        print(f"EMVA 1288 Release 4 Linear applies (photon transfer slope change over the fit range {change:+.1%})")
     print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir() if not p.name.startswith("."))))
     if res.problems:
         print("CHARACTERISATION IMPLAUSIBLE:\n  " + "\n  ".join(res.problems), file=sys.stderr)

@@ -25,6 +25,7 @@ fit fails (exit 3) only when nothing in the library explains the data.
 from __future__ import annotations
 
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -145,7 +146,7 @@ def _temperature_laws(spec: ModelSpec, frame) -> dict[str, dict]:
 
 #: the sections whose candidates follow a covariate the table records (time, temperature) or the dark rows'
 #: exposures: screened even when a fit passes its checks, since their departures can pass every check
-SCREENED = ("dark", "glow", "offset_temperature", "responsivity", "stimulus_drift", "offset_drift")
+SCREENED = ("dark", "glow", "offset_temperature", "responsivity", "stimulus_drift", "offset_drift", "lamp_colour")
 
 
 def screen_candidates(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
@@ -255,6 +256,8 @@ class Diagnosis:
     trials: dict = field(default_factory=dict, repr=False, compare=False)
     rivals: dict = field(default_factory=dict, repr=False, compare=False)
     preferred: dict = field(default_factory=dict, repr=False, compare=False)
+    #: the spec changes of a flexible model (:mod:`bayescal.fitting.flexible`), which has no search steps
+    merged: dict = field(default_factory=dict, repr=False, compare=False)
 
     def describe(self) -> str:
         """The diagnosis in words, for the command line."""
@@ -281,6 +284,8 @@ class Diagnosis:
 
     def changes(self) -> dict:
         """The spec changes adopted, merged by section."""
+        if self.merged:
+            return self.merged
         merged: dict = {}
         for step in self.steps:
             for r in step.itertuples():
@@ -320,6 +325,22 @@ def _quiet_fit(table, spec, backend, seed) -> Fit:
         warnings.simplefilter("ignore", FitFailedWarning)
         warnings.simplefilter("ignore", UserWarning)
         return fit(table, spec, backend, seed=seed)
+
+
+def _fit_all(table, specs: list[ModelSpec], seed: int) -> list[Fit]:
+    """Laplace fits of ``specs``, two at a time in threads (each a compiled program that runs outside the
+    interpreter's lock: on two cores the candidates of one step take about half the time), in order."""
+    if len(specs) < 2:
+        return [_quiet_fit(table, spec, "laplace", seed) for spec in specs]
+    with warnings.catch_warnings():  # here, once: the warning filters are the process's, not a thread's
+        warnings.simplefilter("ignore", FitFailedWarning)
+        warnings.simplefilter("ignore", UserWarning)
+        with ThreadPoolExecutor(CANDIDATE_THREADS) as pool:
+            return list(pool.map(lambda spec: fit(table, spec, "laplace", seed=seed), specs))
+
+
+#: candidate fits run at once (the machine's two cores; a fit's own blocks then run one after the other)
+CANDIDATE_THREADS = 2
 
 
 def _loo(result: Fit):
@@ -375,8 +396,11 @@ def diagnose(
         }
         modes = mode_fits(table, {"": laplace_proxy(current_spec)} | searched) if by_mode else {}
         at_mode = modes.get("")
+        screens = {name: screen(at_mode, modes[name]) if at_mode is not None else None for name in offers}
+        kept = [name for name, by in screens.items() if by is None or not by.out]
+        fitted = dict(zip(kept, _fit_all(table, [searched[name] for name in kept], seed), strict=True))
         for name, (trial, changes) in offers.items():
-            by = screen(at_mode, modes[name]) if at_mode is not None else None
+            by = screens[name]
             screened = {
                 "mode_gain": np.nan if by is None else by.gain,
                 "mode_dse": np.nan if by is None else by.se,
@@ -388,7 +412,7 @@ def diagnose(
                     | screened
                 )
                 continue
-            result = _quiet_fit(table, searched[name], "laplace", seed)
+            result = fitted[name]
             if _level_trend(result) >= LAMP_TREND:  # the "lamp errors" follow the signal: a shape, not a lamp
                 continue
             loo = _loo(result)
@@ -586,13 +610,14 @@ def fit_diagnosed(
     seed: int = 0,
     stage=None,
     screen: bool = True,
+    strategy: str = "search",
     **kw,
 ) -> tuple[Fit, Diagnosis | None]:
-    """:func:`~bayescal.fitting.fit.fit`, and when the fit does not describe its data, :func:`diagnose`:
-    the backend then fits the spec the search found.  A fit that passes is screened with the candidates
-    over what the table records (``screen``; :func:`screen_candidates`).  Returns the final fit (its
-    diagnostics carry the diagnosis) and the diagnosis (None when nothing was adopted, or the first fit
-    failed in its sampler)."""
+    """:func:`~bayescal.fitting.fit.fit`, and when the fit does not describe its data, :func:`diagnose`
+    (``strategy="search"``) or one flexible model (``"flexible"``, :mod:`bayescal.fitting.flexible`): the
+    backend then fits the spec found.  A fit that passes is screened with the candidates over what the table
+    records (``screen``; :func:`screen_candidates`).  Returns the final fit (its diagnostics carry the
+    diagnosis) and the diagnosis (None when nothing was adopted, or the first fit failed in its sampler)."""
     if backend == "lsq" or not kinds_calibration(spec):  # nothing to diagnose: the baseline, another kind
         return fit(table, spec, backend, seed=seed, stage=stage, **kw), None
     if stage is not None and other_domain(spec, table) is not None:
@@ -611,6 +636,8 @@ def fit_diagnosed(
         return _screened(table, spec, backend, first, laplace, seed, stage, kw)
     if first.ok or not _misfit_only(first):
         return first, None
+    if strategy == "flexible":
+        return _flexible(table, spec, backend, first, seed, stage, kw)
     if stage is not None:
         stage("the fit does not describe its data: trying what the library has (Laplace, PSIS-LOO)")
     found = diagnose(table, spec, seed, base=laplace)  # the Laplace fit of this spec, when one was made
@@ -632,6 +659,29 @@ def fit_diagnosed(
             if not found.adopted
             else f"with {' and '.join(found.adopted)} the fit still fails (see diagnosis)"
         )
+        diag = replace(diag, ok=False, problems=tuple(dict.fromkeys(diag.problems + (problem,))))
+    return replace(final, diagnostics=diag), found
+
+
+def _flexible(table, spec, backend, first: Fit, seed: int, stage, kw) -> tuple[Fit, Diagnosis | None]:
+    """The spec with every term the table can inform on (:func:`~bayescal.fitting.flexible.flexible_changes`),
+    fitted once by the user's backend; it fails (exit 3) when even that does not describe the data."""
+    from bayescal.fitting.flexible import flexible_changes
+
+    changes = flexible_changes(spec, table)
+    if not changes:
+        return first, None
+    if stage is not None:
+        stage("the fit does not describe its data: one model with every term the table can inform")
+    trial = spec.replace(**changes)
+    final = fit(table, trial, backend, seed=seed, **kw)
+    terms = tuple(
+        f"[{section}] " + ", ".join(f"{k} = {v!r}" for k, v in keys.items()) for section, keys in changes.items()
+    )
+    found = Diagnosis(terms, trial, bool(final.ok), [], final, merged=changes)
+    diag = final.diagnostics.with_check("diagnosis", [], found.to_dict() | {"strategy": "flexible"})
+    if not final.ok:
+        problem = "with every term the library has for this table on, the fit still fails (see diagnosis)"
         diag = replace(diag, ok=False, problems=tuple(dict.fromkeys(diag.problems + (problem,))))
     return replace(final, diagnostics=diag), found
 

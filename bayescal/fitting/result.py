@@ -26,6 +26,7 @@ from bayescal.errors import FitFailedError, FitFailedWarning, PosteriorError
 from bayescal.fitting.holdout import holdout_checks
 from bayescal.fitting.misfit import MisfitThresholds, misfit_checks
 from bayescal.fitting.nuisance import nuisance_checks
+from bayescal.fitting.variance import variance_checks
 from bayescal.inference import registry as backends
 from bayescal.inference.diagnostics import Diagnostics
 from bayescal.inference.program import LOGLIK
@@ -260,6 +261,7 @@ def finish(model, program, draws, backend: str, seed: int, result, lsq, timings:
     diag = _check_outliers(model, rows, diag)
     diag = _check_misfit(model, rows, post, diag)
     diag = diag.with_check("nuisances", *nuisance_checks(model, post, _coords(model)))
+    diag = diag.with_check("variance", *variance_checks(model, rows["signal"] * model.layout.dn_scale))
     timings["checks"] = time.perf_counter() - t
     if spec.inference.holdout_check and result.positive_definite:
         t = time.perf_counter()

@@ -22,8 +22,9 @@ and, from each family below, one member with its own parameters:
   that reaches the sensor in every illuminated frame and in no dark frame;
 - **black level**: steady; or jittering from frame to frame by 0.7-2.5 DN, the same in the channels of one
   frame;
-- **lamp colour**: constant; or tilting with the lamp's level (a lamp dimmed by its current: the red band
-  rises and the blue band falls, 1-4 % from the lowest level to the highest, systematically);
+- **lamp colour**: constant; or following the lamp's colour temperature, which falls as the lamp is dimmed
+  (Wien's law per band: the red band gains 1-4 % on the blue from the highest level to the lowest,
+  systematically, the channels' mean as the broadband reading says);
 - **thermometer**: on the die; or on the housing, leading the die, which follows it with a lag of a
   tenth to a third of the session (where the temperature changes).
 
@@ -140,12 +141,21 @@ class WildSession:
         return REFERENCE_C + self.params["warming_c"] * -np.expm1(-tau / 0.3) / -np.expm1(-1.0 / 0.3)
 
     def lamp_colour(self, level: int) -> np.ndarray:
-        """Each channel's radiance over the lamp's calibration at sphere level ``level``: 1, or tilting with
-        the level (red up, blue down, from the lowest level to the highest)."""
+        """Each channel's radiance over the lamp's calibration at sphere level ``level``: 1, or following the
+        lamp's colour temperature, which rises with its level (Wien's law per band at the channels' centre
+        wavelengths, relative to the channels' mean, which the broadband reading follows): dimmed, the red
+        band gains on the blue by ``tilt`` from the highest level to the lowest."""
         if self.members["lamp_colour"] != "tilt":
             return np.ones(3)
-        u = np.log(LEVELS[level] / LEVELS[0]) / np.log(LEVELS[-1] / LEVELS[0]) - 0.5
-        return 1.0 + self.params["tilt"] * u * np.array([1.0, 0.0, -1.0])
+        u = np.log(LEVELS[level] / LEVELS[0]) / np.log(LEVELS[-1] / LEVELS[0])  # 0 .. 1 over the levels
+        c2 = 1.4388e-2  # second radiation constant, m K
+        wavelength = np.array([610e-9, 540e-9, 465e-9])
+        t_mid = 2800.0
+        # the colour temperatures' span that moves red against blue by ``tilt`` (1/T_low - 1/T_high)
+        span = self.params["tilt"] / (c2 * (1.0 / wavelength[2] - 1.0 / wavelength[0]))
+        inverse_t = 1.0 / t_mid + span * (0.5 - u)
+        log_band = -c2 / wavelength * (inverse_t - 1.0 / t_mid)
+        return np.exp(log_band - log_band.mean())
 
     def stray(self) -> np.ndarray:
         """The radiance a light leak adds to every illuminated frame, per channel (0 without)."""

@@ -76,3 +76,41 @@ def test_k_undetermined_is_reported(tmp_path):
         characterize(load_steps(tmp_path / "steps12.csv"), seed=0)
     res = characterize(load_steps(tmp_path / "steps50.csv"), seed=0)
     assert any(p.startswith("K is not determined by these data") for p in res.problems), res.problems
+
+
+def test_a_concave_photon_transfer_makes_k_not_determinable(tmp_path):
+    """The real 8-bit sensor's features (dark level near 3 DN with some pixels clipped at 0, dark variance
+    near the quantisation floor, var/mean falling from 0.024 at 20 DN to 0.019 at 200 DN): under Release 4
+    its photon transfer curve is not straight, so K and QE are reported as not determinable (General),
+    never as a tight, wrong interval; the quantities that need no K are still reported."""
+    from bayescal.validation.lowbit import real_8bit
+
+    res, _ = _characterize(tmp_path, real_8bit(), seed=1)
+    assert res.module == "General" and res.problems == []
+    assert res.ptc["change"] < -0.1 and res.ptc["interval"][1] < 0
+    t = res.table.set_index("quantity")
+    for q in ("K", "QE", "sigma_d", "u_e_sat"):
+        assert np.isnan(t.loc[q, "median"]) and "Release 4 Linear does not apply" in t.loc[q, "note"]
+    assert np.isfinite(t.loc["R", "median"]) and np.isfinite(t.loc["LE_min", "median"])
+    assert 1.0 < t.loc["DR", "standard"] < 1e5 and np.isfinite(t.loc["u_p_min", "standard"])
+
+
+def test_the_linear_module_holds_on_linear_sensors_and_concave_ones_are_never_tight_and_wrong(tmp_path):
+    """20 linear sensors: at most one taken for General (the benchmark: 1 of 300); 10 with a V/Q knee taking
+    10-30 % off the conversion gain: each either General or covering its small-signal K and QE."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(11)
+    general = 0
+    for i in range(20):
+        res, _ = _characterize(tmp_path, random_lowbit(rng), seed=700 + i)
+        general += res.module == "General"
+    assert general <= 1, general
+    for i in range(10):
+        sensor = random_lowbit(rng)
+        full_q = (sensor.full_scale - sensor.offset_dn) / sensor.k
+        sensor = replace(sensor, knee_e=full_q / (1.0 / np.sqrt(1.0 - rng.uniform(0.1, 0.3)) - 1.0))
+        res, truth = _characterize(tmp_path, sensor, seed=800 + i)
+        t = res.table.set_index("quantity")
+        covered = all(t.loc[q, "q2.5"] <= truth[q] <= t.loc[q, "q97.5"] for q in ("K", "QE"))
+        assert res.module == "General" or covered, (i, res.ptc, t.loc[["K", "QE"]].to_dict())

@@ -31,6 +31,7 @@ from bayescal.model.components.dark import Dark, DarkSpec, DarkTerm
 from bayescal.model.components.drift import OffsetDrift, StimulusDrift
 from bayescal.model.components.frame_offset import FrameOffset
 from bayescal.model.components.glow import Glow
+from bayescal.model.components.lamp_colour import LampColour
 from bayescal.model.components.noise import Noise, NoiseSpec
 from bayescal.model.components.offset_temperature import OffsetTemperature
 from bayescal.model.components.response import Response, ResponseSpec
@@ -88,6 +89,7 @@ EFFECTS: tuple[type[Effect], ...] = (
     RelativeScatter,
     StrayLight,
     FrameOffset,
+    LampColour,
 )
 
 
