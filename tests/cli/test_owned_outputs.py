@@ -79,6 +79,8 @@ def _naming(verb: str, member: Path, inputs) -> list[str] | None:
     return None
 
 
+#: the suffixes an SBC stem's files have (the only members its --out can name)
+_SBC_SUFFIXES = (".csv", ".md", ".png")
 MEMBER_CASES = [
     (verb, folder, name)
     for verb in sorted(VERB_CASES)
@@ -87,6 +89,7 @@ MEMBER_CASES = [
         ("ccd", ("characterization.csv", "characterization.json", "curves.csv")),
     )
     for name in names
+    if verb != "sbc" or name.endswith(_SBC_SUFFIXES)
 ]
 
 
@@ -94,8 +97,7 @@ MEMBER_CASES = [
 def test_a_member_of_an_output_folder_is_never_a_file_output(verb, folder, name, inputs, capsys):
     member = inputs[folder] / name
     argv = _naming(verb, member, inputs)
-    if argv is None:
-        pytest.skip(f"no --out of {verb} names a file called {name}")
+    assert argv is not None, f"no --out of {verb} names a file called {name}"
     before = _snapshot(inputs[folder])
     for extra in ([], ["--force"]):
         rc, err = _run(capsys, [*argv, *extra])
