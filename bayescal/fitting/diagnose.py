@@ -390,10 +390,8 @@ def diagnose(
         """Fit every offered (spec, changes), rank it against the model so far; the best when the data tell it.
         A candidate whose in-sample gain at its mode cannot reach the evidence is screened out unfitted."""
         rows, fits = [], {}
-        # a candidate's fit ranks it: its Gaussian at the mode without the excess scale's grid (a fifth of a
-        # roll-off candidate's time) and without the held-out refits; the adopted model's own fit has both
         searched = {
-            name: laplace_proxy(trial).replace(inference={"holdout_check": False, "laplace_integrate": False})
+            name: laplace_proxy(trial).replace(inference={"holdout_check": False})
             for name, (trial, _) in offers.items()
         }
         modes = mode_fits(table, {"": laplace_proxy(current_spec)} | searched) if by_mode else {}
