@@ -54,9 +54,9 @@ _LAZY = {
     "BACKENDS": "bayescal.fitting.fit",
     "Fit": "bayescal.fitting.result",
     "fit": "bayescal.fitting.fit",
-    "Diagnosis": "bayescal.fitting.diagnose",
-    "diagnose": "bayescal.fitting.diagnose",
-    "fit_diagnosed": "bayescal.fitting.diagnose",
+    "Diagnosis": "bayescal.fitting.diagnosis",
+    "diagnose": "bayescal.fitting.diagnosis",
+    "fit_diagnosed": "bayescal.fitting.diagnosis",
     "invert_image": "bayescal.prediction.images",
     "read_image": "bayescal.prediction.images",
     "write_radiance_maps": "bayescal.prediction.images",
@@ -146,7 +146,7 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from bayescal.characterization.emva1288 import Characterization, characterize, standard_method
     from bayescal.characterization.nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves
     from bayescal.fitting.batch import FitBatch, fit_many
-    from bayescal.fitting.diagnose import Diagnosis, diagnose, fit_diagnosed
+    from bayescal.fitting.diagnosis import Diagnosis, diagnose, fit_diagnosed
     from bayescal.fitting.fit import BACKENDS, fit
     from bayescal.fitting.result import Fit
     from bayescal.fleet.export import fleet_calibration

@@ -1,6 +1,6 @@
 """Does the diagnosis's screen keep out only candidates that could not have been adopted?
 
-The diagnosis (:mod:`bayescal.fitting.diagnose`) screens each candidate by its in-sample gain at its mode
+The diagnosis (:mod:`bayescal.fitting.diagnosis`) screens each candidate by its in-sample gain at its mode
 (:mod:`bayescal.fitting.modegain`) before a full fit, and skips those whose gain is at most
 ``SCREEN_SE`` standard errors.  Here every candidate of the first step is also fully fitted (Laplace,
 PSIS-LOO, as the diagnosis judges it), on datasets of the two independent simulators: the cameras nobody
@@ -26,7 +26,8 @@ import numpy as np
 import pandas as pd
 
 import bayescal as bc
-from bayescal.fitting import diagnose as dg
+from bayescal.fitting import diagnosis as dg
+from bayescal.fitting.diagnosis import trials
 from bayescal.fitting.modegain import mode_fit, screen
 from bayescal.report.text import markdown_table
 from bayescal.validation import BenchCamera, simulate_bench, with_held_out
@@ -41,8 +42,8 @@ OUT = Path(__file__).resolve().parent / "results"
 def judged(name: str, table: bc.MeasurementTable, spec, seed: int) -> list[dict]:
     """Every first-step candidate of ``table``: screened by its mode, and fitted and judged by PSIS-LOO."""
     base_spec = dg.laplace_proxy(spec)
-    base = dg._quiet_fit(table, base_spec, "laplace", seed)
-    base_loo, base_mode = dg._loo(base), mode_fit(table, base_spec)
+    base = trials.quiet_fit(table, base_spec, "laplace", seed)
+    base_loo, base_mode = trials.psis_loo(base), mode_fit(table, base_spec)
     rows = []
     for candidate, changes in dg.candidates(spec, table).items():
         trial = dg.laplace_proxy(spec.replace(**changes)).replace(inference={"holdout_check": False})
@@ -51,8 +52,8 @@ def judged(name: str, table: bc.MeasurementTable, spec, seed: int) -> list[dict]
         t_mode = time.perf_counter() - t0
         by = screen(base_mode, own)
         t0 = time.perf_counter()
-        result = dg._quiet_fit(table, trial, "laplace", seed)
-        loo_gain, loo_se = dg._difference(base_loo, dg._loo(result))
+        result = trials.quiet_fit(table, trial, "laplace", seed)
+        loo_gain, loo_se = trials.difference(base_loo, trials.psis_loo(result))
         rows.append(
             {
                 "dataset": name,

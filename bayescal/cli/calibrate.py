@@ -41,7 +41,7 @@ def run_fit(
 
     from bayescal import FitFailedWarning, fit
     from bayescal.cli.progress import progress_bar, stage_reporter
-    from bayescal.fitting.diagnose import fit_diagnosed
+    from bayescal.fitting.diagnosis import fit_diagnosed
     from bayescal.inference import registry as backends
 
     inf = spec.inference

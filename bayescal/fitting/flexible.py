@@ -1,6 +1,6 @@
 """One flexible model in place of a search: every term the table can inform, on at once.
 
-When a fit does not describe its data, the search (:func:`bayescal.fitting.diagnose.diagnose`) fits
+When a fit does not describe its data, the search (:func:`bayescal.fitting.diagnosis.diagnose`) fits
 candidate after candidate and adopts one at a time by PSIS-LOO: a dataset with a departure costs every
 candidate's fit, and a departure no candidate names alone ends in a refusal.  The flexible model instead
 switches on, together, every term of the library that the table can inform (:func:`flexible_changes`):
@@ -12,7 +12,7 @@ widen by what the data cannot decide instead of resting on one structure chosen 
 
 Two forms of one effect are never on together: the roll-off is the monotone shape (which draws the knee
 family too), the response's order and the nonlinearity's domain stay as the spec (and the domain
-decision, :func:`~bayescal.fitting.diagnose.decide_domain`) set them, and the lamp's per-channel level
+decision, :func:`~bayescal.fitting.diagnosis.decide_domain`) set them, and the lamp's per-channel level
 errors take :data:`LAMP_LEVEL_REL`, the middle of the sizes the search tries.
 """
 
@@ -29,9 +29,9 @@ LAMP_LEVEL_REL = 0.01
 
 def flexible_changes(spec: ModelSpec, table: MeasurementTable) -> dict[str, dict]:
     """The spec changes that switch on every term the table can inform (the search's candidates,
-    :func:`~bayescal.fitting.diagnose.candidates`, merged as the module docstring says); empty when there
+    :func:`~bayescal.fitting.diagnosis.candidates`, merged as the module docstring says); empty when there
     is none."""
-    from bayescal.fitting.diagnose import candidates
+    from bayescal.fitting.diagnosis import candidates
 
     merged: dict[str, dict] = {}
     for changes in candidates(spec, table).values():

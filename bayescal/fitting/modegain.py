@@ -1,6 +1,6 @@
 """What a candidate model gains in-sample at its posterior mode: the diagnosis's screen before a full fit.
 
-A candidate of the diagnosis (:mod:`bayescal.fitting.diagnose`) is judged by its gain in expected log
+A candidate of the diagnosis (:mod:`bayescal.fitting.diagnosis`) is judged by its gain in expected log
 predictive density, PSIS-LOO over 4000 Laplace draws of a full fit.  Most candidates of a dataset the
 library cannot explain gain nothing, and a full fit of each costs seconds (a monotone roll-off's, with a
 quadrature in every evaluation, 7-9 s).  The gain of the log-likelihood at the candidate's mode over the

@@ -368,7 +368,7 @@ def test_a_clipped_region_with_no_temporal_noise_is_data(good_csv):
 def test_the_domain_of_a_pooled_spec_is_decided_by_fits_laplace_can_make(seed000):
     """The seed-000 spec with pooled channels: the domain decision (gains are swept) runs on the
     unpooled Laplace fits that stand for it, and hands the pooled spec to the user's backend."""
-    from bayescal.fitting.diagnose import decide_domain, laplace_proxy
+    from bayescal.fitting.diagnosis import decide_domain, laplace_proxy
 
     spec, design = seed000
     pooled = spec.replace(response={"pooled": True})

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 import bayescal as bc
-from bayescal.fitting.diagnose import _swaps, candidates
+from bayescal.fitting.diagnosis import candidates
+from bayescal.fitting.diagnosis.search import alternatives
 from bayescal.fitting.modegain import SCREEN_SE, ModeFit, paired_gain, screen
 from bayescal.model.components.glow import Glow
 from bayescal.model.components.sphere import fold_common_scale
@@ -59,7 +60,7 @@ def test_an_adopted_switch_meets_its_alternatives_with_the_others_on():
     offered = candidates(spec, table)
     soft = "a soft roll-off towards full scale (not a polynomial)"
     glow = next(n for n in offered if "glow" in n)
-    swaps = _swaps(spec, table, {soft: offered[soft], glow: offered[glow]}, candidates)
+    swaps = alternatives(spec, table, {soft: offered[soft], glow: offered[glow]}, candidates)
     replaced = {name.split(" (in place of ")[0]: old for name, (old, _, _) in swaps.items()}
     assert replaced["a monotone roll-off towards full scale of any smooth shape"] == soft
     assert (
@@ -179,7 +180,7 @@ def test_a_candidate_the_data_cannot_tell_apart_that_moves_a_coefficient_is_repo
 
     import pandas as pd
 
-    from bayescal.fitting.diagnose import DOUBT_Z, Diagnosis, rival_doubt, structure_doubt
+    from bayescal.fitting.diagnosis import DOUBT_Z, Diagnosis, rival_doubt, structure_doubt
 
     rng = np.random.default_rng(3)
     unit = rng.standard_normal((4000, 2, 2))
@@ -219,11 +220,11 @@ def test_a_candidate_the_data_cannot_tell_apart_that_moves_a_coefficient_is_repo
 
 
 def test_rivals_are_the_passing_fits_the_data_cannot_tell_from_the_winner():
-    """_rivals: elpd_loo differences paired over the same rows; a fit within 2 se of the winner's that passes is
+    """rivals_of: elpd_loo differences paired over the same rows; a fit within 2 se of the winner's that passes is
     a rival; one 3 se below, or one that fails its checks, is not (pointwise elpds with exact sums and sds)."""
     from types import SimpleNamespace
 
-    from bayescal.fitting.diagnose import _rivals
+    from bayescal.fitting.diagnosis.search import rivals_of
 
     n = 100
     noise = np.tile([1.0, -1.0], n // 2)  # mean 0, sd 1: the paired difference's se is sqrt(n) * sd
@@ -235,7 +236,7 @@ def test_rivals_are_the_passing_fits_the_data_cannot_tell_from_the_winner():
 
     fits = {"w": (None, SimpleNamespace(ok=True, posterior=object()), winner), "near": entry(-1.5), "far": entry(-3.0)}
     fits["failing"] = entry(0.5, ok=False)
-    found = _rivals(winner, fits, "w")
+    found = rivals_of(winner, fits, "w")
     assert set(found) == {"near"}
     diff, se, _ = found["near"]
     assert diff == pytest.approx(-1.5 * np.sqrt(n)) and se == pytest.approx(np.sqrt(n))
@@ -272,7 +273,7 @@ def test_a_lamp_error_size_the_data_cannot_tell_gives_way_to_the_wider():
     benchmark's fifth dataset): PSIS-LOO cannot tell 0.3 % from 1 % per level (elpd within 1 of each other);
     the narrower prior left three of the six A0, A1 outside their 95 % intervals.  Whichever size the elpd's
     coin picks, the wider one is reported (it draws the narrower one's errors too) and every A0, A1 covers."""
-    from bayescal.fitting.diagnose import diagnose
+    from bayescal.fitting.diagnosis import diagnose
 
     spec = bc.load_spec(SPEC)
     table, real = _table(Departures(spectral_level_rel=0.01, channel_scale_rel=0.015), 10_004)
@@ -294,21 +295,21 @@ def test_a_lamp_error_size_the_data_cannot_tell_gives_way_to_the_wider():
 
 
 def test_the_flexible_rival_is_wider_lamp_errors_or_the_monotone_roll_off_and_nothing_else():
-    """_more_flexible: the rule that reports a rival in place of the adopted model.  It holds for the same
+    """more_flexible: the rule that reports a rival in place of the adopted model.  It holds for the same
     model with wider per-channel lamp errors and for the monotone roll-off against the knee; it fails for
     narrower lamp errors, for no lamp errors at all, for wider lamp errors that come with another change,
     and for the knee against the monotone shape."""
-    from bayescal.fitting.diagnose import _more_flexible
+    from bayescal.fitting.diagnosis.search import more_flexible
 
     spec = bc.load_spec(SPEC)
     lamp = {size: spec.replace(sphere={"channel_level_rel": size}) for size in (0.0, 0.003, 0.01)}
-    assert _more_flexible(lamp[0.01], lamp[0.003])
-    assert not _more_flexible(lamp[0.003], lamp[0.01])
-    assert not _more_flexible(lamp[0.01], lamp[0.0])  # switching the errors on is a new term, not a wider one
-    assert not _more_flexible(lamp[0.01], lamp[0.01])
-    assert not _more_flexible(lamp[0.01].replace(response={"order": 3}), lamp[0.003])
+    assert more_flexible(lamp[0.01], lamp[0.003])
+    assert not more_flexible(lamp[0.003], lamp[0.01])
+    assert not more_flexible(lamp[0.01], lamp[0.0])  # switching the errors on is a new term, not a wider one
+    assert not more_flexible(lamp[0.01], lamp[0.01])
+    assert not more_flexible(lamp[0.01].replace(response={"order": 3}), lamp[0.003])
     knee, monotone = spec.replace(response={"rolloff": True}), spec.replace(response={"rolloff": "monotone"})
-    assert _more_flexible(monotone, knee) and not _more_flexible(knee, monotone)
+    assert more_flexible(monotone, knee) and not more_flexible(knee, monotone)
 
 
 def test_paired_gain_is_the_sum_and_its_standard_error():

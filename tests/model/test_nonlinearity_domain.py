@@ -104,7 +104,7 @@ def test_the_domain_decision_takes_the_true_domain_and_screens_the_other(sense_n
     """decide_domain on the sense-node bench (the compression is the charge's): from the output spec the
     charge is taken by PSIS-LOO (its in-sample gain at the mode passes the screen); from the charge spec
     the output is not taken, and when the screen keeps it out its in-sample gain is at most one se."""
-    from bayescal.fitting.diagnose import decide_domain
+    from bayescal.fitting.diagnosis import decide_domain
     from bayescal.fitting.modegain import SCREEN_SE
 
     spec, table, _ = sense_node_bench

@@ -202,7 +202,7 @@ class Effect(Component):
 
     @classmethod
     def candidates(cls, section: Any, spec: ModelSpec, frame: pd.DataFrame) -> dict[str, dict]:
-        """What the diagnosis (:func:`bayescal.fitting.diagnose.candidates`) may try when a model without
+        """What the diagnosis (:func:`bayescal.fitting.diagnosis.candidates`) may try when a model without
         this effect does not fit ``frame``: a name -> the spec change that adds it, for each form the table
         can measure (empty: none, or it is already in the model)."""
         return {}

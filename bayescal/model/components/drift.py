@@ -259,7 +259,7 @@ class StimulusDriftSpec(DriftSpec):
     a session whose settings are measured one block after another is absorbed by the settings' effective
     factors and passes every check of the residuals while the coefficients relative to the sphere miss their
     truth.  The data can rarely tell the two structures apart, so the screen of a fit that passes
-    (:func:`bayescal.fitting.diagnose.structure_doubt`) reports the drift's model, whose intervals carry the
+    (:func:`bayescal.fitting.diagnosis.structure_doubt`) reports the drift's model, whose intervals carry the
     lamp's doubt, whenever it moves a coefficient; a design that repeats a sphere level at the start, the
     middle and the end of the session measures the drift and narrows them."""
 

@@ -83,7 +83,7 @@ class ResponseSpec:
     tanh, a knee of any sharpness: :mod:`~bayescal.model.components.rolloff`), its slope's log
     changing by weights with Normal(0, :data:`~bayescal.model.components.rolloff.WEIGHT_SD`)
     priors; ``true`` is ``"knee"``.  Off by
-    default: the misfit diagnosis (:mod:`bayescal.fitting.diagnose`) tries both shapes when the
+    default: the misfit diagnosis (:mod:`bayescal.fitting.diagnosis`) tries both shapes when the
     data ask for one.
     """
 
