@@ -20,10 +20,10 @@ import pandas as pd
 from bayescal.characterization.emva1288 import QUANT, Characterization
 from bayescal.characterization.pattern import pattern_images, pattern_sd_draws, spectrogram
 from bayescal.io.outputs import write_text_atomic
-from bayescal.report.figures import png_base64, subplots
+from bayescal.report.figures import png_base64, save_figure, subplots
 from bayescal.report.page import escape, image, page, table
 
-__all__ = ["write_datasheet", "snr_band"]
+__all__ = ["write_datasheet", "write_curves", "snr_band"]
 
 #: the posterior draws drawn into each band (a subset of the characterisation's 4000)
 BAND_DRAWS = 1000
@@ -50,26 +50,31 @@ def _draws(res: Characterization, name: str) -> tuple[tuple[int, ...], np.ndarra
     return tuple(powers), np.asarray(coef)[:BAND_DRAWS]
 
 
-def _photon_transfer(res: Characterization) -> str:
+def _figure(draw, res: Characterization) -> str:
+    """One of the datasheet's plots (``draw(ax, res)``) as an embedded PNG."""
+    fig, ax = subplots(figsize=(6.4, 4.2))
+    draw(ax, res)
+    return png_base64(fig)
+
+
+def _photon_transfer(ax, res: Characterization) -> None:
     c, r, p = res.curves, res.ranges, res.standard
     s = slice(r["index_sensitivity_min"], r["index_sensitivity_max"] + 1)
-    fig, ax = subplots(figsize=(6.4, 4.2))
     ax.plot(c["signal"], c["var_signal"], "o", ms=3, color="0.55", label="steps")
     ax.plot(c["signal"][s], c["var_signal"][s], "o", ms=4, color="k", label="fit range (<= 70 % sat.)")
     x = np.linspace(0.0, float(c["signal"][s].max()), 80)
     found = _draws(res, "photon_transfer")
     if found is not None:
         _band(ax, x, _poly(*found, x), "posterior")
-    ax.plot(x, p["K"] * x, "--", color=STANDARD, label=f"standard: K = {p['K']:.4g} DN/e-")
+    if np.isfinite(p["K"]):
+        ax.plot(x, p["K"] * x, "--", color=STANDARD, label=f"standard: K = {p['K']:.4g} DN/e-")
     ax.set(xlabel="mean signal mu_y - mu_dark (DN)", ylabel="variance s2_y - s2_dark (DN^2)", title="photon transfer")
     ax.legend(fontsize=9)
-    return png_base64(fig)
 
 
-def _sensitivity(res: Characterization) -> str:
+def _sensitivity(ax, res: Characterization) -> None:
     c, r, p = res.curves, res.ranges, res.standard
     s = slice(r["index_sensitivity_min"], r["index_sensitivity_max"] + 1)
-    fig, ax = subplots(figsize=(6.4, 4.2))
     ax.plot(c["photons"], c["signal"], "o", ms=3, color="0.55", label="steps")
     ax.plot(c["photons"][s], c["signal"][s], "o", ms=4, color="k", label="fit range (<= 70 % sat.)")
     x = np.linspace(0.0, float(c["photons"][s].max()), 80)
@@ -79,7 +84,6 @@ def _sensitivity(res: Characterization) -> str:
     ax.plot(x, p["R"] * x, "--", color=STANDARD, label=f"standard: R = {p['R']:.4g} DN/photon")
     ax.set(xlabel="photons per pixel", ylabel="mean signal mu_y - mu_dark (DN)", title="sensitivity")
     ax.legend(fontsize=9)
-    return png_base64(fig)
 
 
 def snr_band(res: Characterization, photons: np.ndarray) -> np.ndarray:
@@ -93,31 +97,33 @@ def snr_band(res: Characterization, photons: np.ndarray) -> np.ndarray:
     return signal / np.sqrt(sigma_d**2 + QUANT / k**2 + signal)
 
 
-def _snr(res: Characterization) -> str:
+def _snr(ax, res: Characterization) -> None:
+    from matplotlib.ticker import LogLocator, NullFormatter
+
     c = res.curves
     saturation = float(res.standard.get("u_p_sat", np.inf))
     # lit and below saturation (a clipped step reads no noise: its SNR means nothing)
     lit = (c["photons"].to_numpy() > 0) & (c["photons"].to_numpy() <= saturation)
     photons = c["photons"].to_numpy()[lit]
     measured = c["signal"].to_numpy()[lit] / np.sqrt(np.maximum(c["s2_y"].to_numpy()[lit], 1e-12))
-    fig, ax = subplots(figsize=(6.4, 4.2))
     ax.loglog(photons, measured, "o", ms=3, color="k", label="steps: (mu_y - mu_dark) / s_y")
     x = np.geomspace(photons.min(), photons.max(), 80)
     if all(name in res.draws for name in ("QE", "K", "sigma_d")):
         _band(ax, x, snr_band(res, x), "posterior")
     ax.loglog(x, np.sqrt(x), ":", color="0.4", label="ideal sensor (sqrt mu_p)")
     ax.set(xlabel="photons per pixel", ylabel="SNR", title="signal-to-noise ratio")
+    for axis in (ax.xaxis, ax.yaxis):  # decades labelled, not every minor tick (their labels overlapped)
+        axis.set_major_locator(LogLocator(base=10.0))
+        axis.set_minor_formatter(NullFormatter())
     ax.legend(fontsize=9)
-    return png_base64(fig)
 
 
-def _linearity(res: Characterization) -> str:
+def _linearity(ax, res: Characterization) -> None:
     c, r = res.curves, res.ranges
     lo, hi = r["index_linearity_min"], r["index_linearity_max"] + 1
     x, y = c["photons"].to_numpy()[lo:hi], c["signal"].to_numpy()[lo:hi]
     a1, a0 = np.polyfit(x, y, 1, w=1.0 / y)
     line = a1 * x + a0
-    fig, ax = subplots(figsize=(6.4, 4.2))
     found = _draws(res, "linearity")
     if found is not None:
         _band(ax, x, 100 * (_poly(*found, x) - line[None, :]) / line[None, :], "the line's posterior")
@@ -125,7 +131,6 @@ def _linearity(res: Characterization) -> str:
     ax.axhline(0, color=STANDARD, lw=0.8, ls="--", label="standard's line")
     ax.set(xlabel="photons per pixel", ylabel="deviation (%)", title="linearity (5-95 % of saturation)")
     ax.legend(fontsize=9)
-    return png_base64(fig)
 
 
 def _dark(res: Characterization) -> str | None:
@@ -215,10 +220,10 @@ def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
     )
     verdict = {True: "compatible", False: "NOT compatible", None: undetermined}[res.dark_current_compatible]
     figures = [
-        ("Photon transfer", _photon_transfer(res)),
-        ("Sensitivity", _sensitivity(res)),
-        ("Signal-to-noise ratio", _snr(res)),
-        ("Linearity", _linearity(res)),
+        ("Photon transfer", _figure(_photon_transfer, res)),
+        ("Sensitivity", _figure(_sensitivity, res)),
+        ("Signal-to-noise ratio", _figure(_snr, res)),
+        ("Linearity", _figure(_linearity, res)),
     ]
     for title, png in (
         ("Dark signal", _dark(res)),
@@ -250,6 +255,8 @@ def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
     for note in res.notes:
         body.append(f"<p><b>Note:</b> {escape(note)}</p>")
     body += [
+        "<h2>Operating point</h2>",
+        table(_operating(res.operating)),
         "<h2>Quantities</h2>",
         table(_shown(quantities)),
         f"<p>Dark current from the mean and from the variance: <b>{escape(verdict)}</b> (95 % interval of "
@@ -259,6 +266,44 @@ def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
         body.append(f"<h2>{escape(title)}</h2>{image(png, title)}")
     write_text_atomic(out, page("EMVA 1288 datasheet", "\n".join(body)))
     return out
+
+
+def write_curves(res: Characterization, out: str | os.PathLike) -> Path:
+    """The photon transfer, sensitivity and linearity plots of the datasheet side by side, with the same
+    posterior bands (PNG, written atomically): ``photon_transfer.png`` beside the datasheet."""
+    out = Path(out)
+    fig, axes = subplots(1, 3, figsize=(18, 4.6))
+    for ax, draw in zip(axes, (_photon_transfer, _sensitivity, _linearity), strict=True):
+        draw(ax, res)
+    fig.tight_layout()
+    save_figure(fig, out)
+    return out
+
+
+def _operating(op: dict) -> pd.DataFrame:
+    """The operating point as the datasheet's first table (what the set does not record, said so)."""
+
+    def span(v, unit: str, fmt: str = ".4g") -> str:
+        return f"{v[0]:{fmt}} to {v[1]:{fmt}} {unit}" if v[0] != v[1] else f"{v[0]:{fmt}} {unit}"
+
+    rows = [
+        ("bit depth", f"{op.get('bits', '')}"),
+        (
+            "pixels per image",
+            "not recorded (a reduced table: the dark variance's posterior assumes 640 x 480)"
+            if op.get("pixels_per_image") is None
+            else f"{op['pixels_per_image']}",
+        ),
+        ("exposure time", span(op["exposure_s"], "s") if "exposure_s" in op else ""),
+        ("photons per pixel", span(op["photons_per_pixel"], "") if "photons_per_pixel" in op else ""),
+        ("bright steps", f"{op.get('bright_steps', '')}"),
+        ("dark exposures", ", ".join(f"{t:.4g} s" for t in op.get("dark_exposures_s", []))),
+        ("images per stack", f"{op.get('stack_images', 0) or 'no stacks'}"),
+        ("wavelength, pixel size, gain", "not recorded in the set's files"),
+    ]
+    if "image_shape" in op:
+        rows.insert(2, ("image shape", " x ".join(str(n) for n in op["image_shape"])))
+    return pd.DataFrame(rows, columns=["item", "value"])
 
 
 def _shown(q: pd.DataFrame) -> pd.DataFrame:

@@ -50,7 +50,7 @@ from bayescal.io.emva import Steps
 from bayescal.model.components.noise import QUANTISATION_DN2
 from bayescal.model.quantisation import DARK_FLOOR_DN2
 
-__all__ = ["Characterization", "characterize", "standard_method", "plot_curves"]
+__all__ = ["Characterization", "characterize", "standard_method"]
 
 SENSITIVITY_FRACTION = 0.7
 #: a K whose 95 % interval spans more than this fraction of its median is reported as not determined
@@ -86,6 +86,8 @@ class Characterization:
     #: the photon transfer curve's straightness over its fit range (:func:`_ptc_linearity`): ``linear`` decides
     #: whether EMVA 1288 Release 4 Linear applies (K, QE and what needs them are reported)
     ptc: dict = field(default_factory=dict)
+    #: the operating point the set records (:func:`operating_point`): bits, pixels, exposures, photons, steps
+    operating: dict = field(default_factory=dict)
 
     @property
     def module(self) -> str:
@@ -132,6 +134,7 @@ class Characterization:
             "dark_current_compatible": self.dark_current_compatible,
             "module": self.module,
             "photon_transfer_linearity": self.ptc,
+            "operating_point": self.operating,
             "notes": list(self.notes),
             "quantities": self.table.to_dict("records"),
         }
@@ -258,7 +261,7 @@ def _quantities(k, resp, s2_dark, i_mean, i_var, u_p_sat, le_min, le_max) -> dic
         "dark_current_mean": i_mean,
         "dark_current_var": i_var,
         "dark_current_difference": i_mean - i_var,
-        "u_p_sat": np.full(np.shape(k), u_p_sat),  # a point value: the saturation step is discrete
+        "u_p_sat": np.broadcast_to(u_p_sat, np.shape(k)) * 1.0,
         "u_e_sat": qe * u_p_sat,
         "u_p_min": u_p_min,
         "DR": u_p_sat / u_p_min,
@@ -402,6 +405,43 @@ def _line_posterior(
     return out / h ** np.asarray(powers, dtype=float)
 
 
+def _rising_line_posterior(t, y, n: int, rng: np.random.Generator, what: str) -> tuple[np.ndarray, str | None]:
+    """Posterior draws ``(n, 2)`` of the slope and intercept of ``y`` against the exposure ``t`` under a prior
+    flat on a slope that cannot be negative: a dark current, and the variance it adds, grow with the
+    exposure (EMVA 1288 takes the dark currents as the slopes of the dark mean and variance in the exposure).
+    The flat-prior posterior (:func:`_line_posterior`) restricted to a non-negative slope, drawn by
+    rejection: an interval then holds only possible values (a normal clipped at zero would pile mass on
+    zero).  Where the data put the slope firmly below zero (fewer than 1 in 1,000 draws above; seen where
+    the dark variance sits at the quantisation floor), the draws are NaN and the second value says why."""
+    kept: list[np.ndarray] = []
+    have = tried = 0
+    while have < n and not (tried >= 20 * n and have < tried / 1000):
+        batch = _line_posterior(t, y, np.ones_like(t), n, rng, what=f"the {what} against exposure")
+        tried += n
+        kept.append(batch[batch[:, 0] >= 0.0])
+        have += len(kept[-1])
+    if have >= n:
+        return np.concatenate(kept)[:n], None
+    why = (
+        f"not determinable: the {what} falls with the exposure time (its slope is below zero in "
+        f"{1 - have / tried:.1%} of {tried} posterior draws), which no dark current does"
+    )
+    return np.full((n, 2), np.nan), why
+
+
+def _saturation_draws(c: pd.DataFrame, r: dict, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Draws of the saturation irradiation ``u_p_sat`` (photons).  The standard takes the step where the
+    temporal variance peaks (EMVA 1288, the saturation point); a sweep of discrete steps places the true peak
+    only to within the step spacing, so the draws are uniform between the midpoints to the neighbouring
+    steps (a last step has no neighbour above: its own spacing below is mirrored)."""
+    photons = c["photons"].to_numpy()
+    i = int(r["index_u_ysat"])
+    at = photons[i]
+    below = photons[i - 1] if i > 0 else at
+    above = photons[i + 1] if i + 1 < len(photons) else at + (at - below)
+    return rng.uniform(0.5 * (below + at), 0.5 * (at + above), n)
+
+
 def _relative_or_floor(signal: np.ndarray, grid: int = 21) -> np.ndarray:
     """Candidate weightings ``1 / (s^2 + rho)`` of a regression on the signal ``s``: errors relative to the
     signal (source stability) up to a floor ``rho`` (the means' own noise and rounding), ``sqrt(rho)`` from
@@ -475,19 +515,23 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
     if _dark_exposures(steps) >= 2:
         dk = steps.dark
         t = dk["texp_s"].to_numpy()
-        dark_line = _line_posterior(t, dk["mean_dn"].to_numpy(), np.ones_like(t), n_draws, rng)
-        curve_draws["dark_mean"] = ((1, 0), dark_line)
-        i_mean = dark_line[:, 0] / k
-        i_var = _line_posterior(t, dk["var_dn2"].to_numpy(), np.ones_like(t), n_draws, rng)[:, 0] / k**2
+        dark_line, fell_mean = _rising_line_posterior(t, dk["mean_dn"].to_numpy(), n_draws, rng, "mean dark signal")
+        var_line, fell_var = _rising_line_posterior(t, dk["var_dn2"].to_numpy(), n_draws, rng, "dark variance")
+        if fell_mean is None:
+            curve_draws["dark_mean"] = ((1, 0), dark_line)
+        i_mean, i_var = dark_line[:, 0] / k, var_line[:, 0] / k**2
+        fell = {"dark_current_mean": fell_mean, "dark_current_var": fell_var}
+        fell["dark_current_difference"] = fell_mean or fell_var
     else:
         i_mean = i_var = np.full(n_draws, np.nan)
+        fell = {}
     lin = _line_posterior(c["photons"].to_numpy()[_lin(r)], sig[_lin(r)], 1.0 / sig[_lin(r)] ** 2, n_draws, rng)
     curve_draws["linearity"] = ((1, 0), lin)
     le_min, le_max = _linearity_at_extremes(c, r, point, lin[:, 0], lin[:, 1])
-    draws = _quantities(k, resp, s2_dark, i_mean, i_var, point["u_p_sat"], le_min, le_max)
+    draws = _quantities(k, resp, s2_dark, i_mean, i_var, _saturation_draws(c, r, n_draws, rng), le_min, le_max)
     if steps.stack:
         draws.update(_nonuniformity(steps.stack, k, *_spatial_draws(steps.stack, n_pix, n_draws, rng)))
-    notes = {}
+    notes = {name: why for name, why in fell.items() if why is not None}
     if not ptc["linear"]:  # Release 4 Linear does not apply: no K, nor what needs one (Release 4 General)
         why = (
             f"not determinable: the photon transfer curve is not straight over its fit range (its slope changes by "
@@ -553,7 +597,30 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
         steps.stack,
         _layout_notes(steps),
         ptc,
+        operating_point(steps),
     )
+
+
+def operating_point(steps: Steps) -> dict:
+    """The operating point of the datasheet (EMVA 1288's first table) as far as the set records it: the bit
+    depth, the pixels per image, the exposure times and photons per pixel swept, the steps, the dark
+    exposures and the stacks' images.  The wavelength, pixel size and gain are not in a set's files: the
+    datasheet says so rather than inventing them."""
+    b = steps.bright
+    n_pix = b["n_pixels"].iloc[0] if "n_pixels" in b else np.nan
+    out = {
+        "bits": int(steps.bits),
+        "pixels_per_image": int(n_pix) if np.isfinite(n_pix) else None,
+        "exposure_s": [float(b["texp_s"].min()), float(b["texp_s"].max())],
+        "photons_per_pixel": [float(b["photons"].min()), float(b["photons"].max())],
+        "bright_steps": int(len(b)),
+        "dark_exposures_s": sorted({round(float(t), 12) for t in steps.dark["texp_s"]}),
+        "stack_images": int(steps.stack["n_images"]) if steps.stack else 0,
+    }
+    image = steps.stack.get("image_bright") if steps.stack else None
+    if image is not None:
+        out["image_shape"] = list(np.shape(image))
+    return out
 
 
 def _general(c: pd.DataFrame, r: dict, point: dict) -> dict:
@@ -631,34 +698,3 @@ def _undetermined(name: str) -> str:
     if name.startswith("dark_current"):
         return "not determined: dark frames at one exposure time only (a dark current is a slope in time)"
     return "not determined by these data"
-
-
-def plot_curves(res: Characterization, path) -> None:
-    """Photon transfer, sensitivity and linearity-deviation curves (PNG, written atomically), fit ranges shaded."""
-    from bayescal.report.figures import save_figure, subplots
-
-    c, r, p = res.curves, res.ranges, res.standard
-    fig, axes = subplots(1, 3, figsize=(14, 4))
-    s = slice(r["index_sensitivity_min"], r["index_sensitivity_max"] + 1)
-    ax = axes[0]
-    ax.plot(c["signal"], c["var_signal"], "o", ms=3)
-    ax.plot(c["signal"][s], c["var_signal"][s], "o", ms=4, label="fit range (<= 70 % sat.)")
-    x = np.linspace(0, c["signal"].max(), 50)
-    ax.plot(x, p["K"] * x, "-", label=f"K = {p['K']:.4g} DN/e-")
-    ax.set(xlabel="mu_y - mu_dark (DN)", ylabel="s2_y - s2_dark (DN^2)", title="photon transfer")
-    ax.legend(fontsize=8)
-    ax = axes[1]
-    ax.plot(c["photons"], c["signal"], "o", ms=3)
-    ax.plot(x / p["R"], x, "-", label=f"R = {p['R']:.4g} DN/photon")
-    ax.set(xlabel="photons per pixel", ylabel="mu_y - mu_dark (DN)", title="sensitivity")
-    ax.legend(fontsize=8)
-    ax = axes[2]
-    lo = r["index_linearity_min"]
-    hi = r["index_linearity_max"] + 1
-    xl, yl = c["photons"].to_numpy()[lo:hi], c["signal"].to_numpy()[lo:hi]
-    a1, a0 = np.polyfit(xl, yl, 1, w=1.0 / yl)
-    ax.plot(xl, 100 * (yl - (a1 * xl + a0)) / (a1 * xl + a0), "o-", ms=3)
-    ax.axhline(0, color="0.5", lw=0.6)
-    ax.set(xlabel="photons per pixel", ylabel="deviation (%)", title="linearity (5-95 % of saturation)")
-    fig.tight_layout()
-    save_figure(fig, path)

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 
 def cmd_characterize(args) -> int:
-    from bayescal.characterization.datasheet import write_datasheet
-    from bayescal.characterization.emva1288 import characterize, plot_curves
+    import dataclasses
+
+    from bayescal.characterization.datasheet import write_curves, write_datasheet
+    from bayescal.characterization.emva1288 import characterize
     from bayescal.cli.progress import stage_reporter
     from bayescal.io.emva import load_steps
     from bayescal.io.outputs import check_output_dir, staged_directory, write_json_atomic
@@ -17,16 +20,24 @@ def cmd_characterize(args) -> int:
     stage(f"reading {args.input} (image pairs and stacks are reduced streaming)")
     from bayescal.io.resources import example_path
 
-    steps = load_steps(example_path(args.input, "data"))
+    path = example_path(args.input, "data")
+    steps = load_steps(path)
     stage("standard method and posteriors")
     res = characterize(steps, seed=args.seed)
+    if path != Path(args.input):  # a shipped example by name: named so, not by where the package is installed
+        res = dataclasses.replace(res, source=f"the shipped example {args.input}")
     with staged_directory(out, kind="characterization") as staged:
         res.table.to_csv(staged("characterization.csv"), index=False, float_format="%.8g")
         write_json_atomic(staged("characterization.json"), res.to_dict())
         res.curves.to_csv(staged("curves.csv"), index=False, float_format="%.8g")
-        plot_curves(res, staged("photon_transfer.png"))
+        write_curves(res, staged("photon_transfer.png"))
         write_datasheet(res, staged("datasheet.html"))
-    print(f"EMVA 1288 characterisation of {args.input} (standard point estimate | posterior median [95 %]):")
+    op = res.operating
+    print(
+        f"EMVA 1288 characterisation of {args.input}: {op['bits']}-bit, {op['bright_steps']} bright steps, exposures "
+        f"{op['exposure_s'][0]:.4g}-{op['exposure_s'][1]:.4g} s, up to {op['photons_per_pixel'][1]:.4g} photons per "
+        f"pixel (standard point estimate | posterior median [95 %]):"
+    )
     print(res.table.to_string(index=False, float_format="%.5g"))
     undetermined = (
         "not determinable (no system gain K)" if res.module == "General" else "not determined (one dark exposure time)"

@@ -39,3 +39,15 @@ def test_the_datasheet_draws_every_plot_with_its_band(ccd, tmp_path):
     # the curves the bands are drawn from: the photon transfer quartic's slope at zero is K's posterior
     powers, coef = ccd.curve_draws["photon_transfer"]
     np.testing.assert_allclose(np.median(coef[:, powers.index(1)]), np.median(ccd.draws["K"]), rtol=1e-12)
+
+
+def test_the_datasheet_opens_with_the_operating_point_the_set_records(ccd, tmp_path):
+    """The standard's first table, as far as the set's files record it (the reference CCD: 12 bits, 50 bright
+    steps); what no file records is said so, not invented (the shipped reduced table has no pixel count)."""
+    op = ccd.operating
+    assert op["bits"] == 12 and op["pixels_per_image"] is None and op["bright_steps"] == 50
+    assert op["exposure_s"][0] < op["exposure_s"][1] and op["photons_per_pixel"][1] > 30000
+    html = write_datasheet(ccd, tmp_path / "datasheet.html").read_text()
+    assert html.index("Operating point") < html.index("Quantities")
+    assert "<td>bit depth</td><td>12</td>" in html and "not recorded in the set&#x27;s files" in html
+    assert "not recorded (a reduced table" in html

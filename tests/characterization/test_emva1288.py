@@ -2,12 +2,14 @@
 implementation's numbers, posteriors with intervals, the dark-current compatibility verdict,
 streaming reduction, descriptor parsing and the CLI."""
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
 from bayescal.characterization.emva1288 import characterize
+from bayescal.characterization.simulate import simulate_steps
 from bayescal.cli import main
 from bayescal.errors import TableError
 from bayescal.io.emva import load_steps, read_descriptor, reduce_pair, reduce_stack
@@ -72,6 +74,34 @@ def test_posteriors_have_intervals_and_dark_currents_are_compared(full):
     assert (t.loc["K", "q97.5"] - t.loc["K", "q2.5"]) / t.loc["K", "median"] < 0.04
     assert full.dark_current_compatible
     assert t.loc["dark_current_difference", "q2.5"] < 0 < t.loc["dark_current_difference", "q97.5"]
+
+
+def test_intervals_hold_only_possible_values(full):
+    """Dark currents cannot be negative: their posteriors live on slopes >= 0 (not a clipped normal, which would
+    put a point mass at zero); the saturation irradiation's interval is the sweep's step spacing around the
+    standard's step, not a zero width."""
+    t = full.table.set_index("quantity")
+    draws = full.draws
+    for q in ("dark_current_mean", "dark_current_var"):
+        assert t.loc[q, "q2.5"] > 0, q  # the CCD's dark currents are clearly positive: no mass piles on zero
+        assert np.all(draws[q] >= 0) and np.mean(draws[q] == 0) == 0, q
+    photons = load_steps(REF / "steps.csv").bright["photons"].to_numpy()
+    photons = np.sort(photons)
+    i = int(np.searchsorted(photons, t.loc["u_p_sat", "standard"]))
+    lo, hi = (photons[i - 1] + photons[i]) / 2, (photons[i] + photons[i + 1]) / 2
+    assert lo <= t.loc["u_p_sat", "q2.5"] < t.loc["u_p_sat", "standard"] < t.loc["u_p_sat", "q97.5"] <= hi
+
+
+def test_a_dark_variance_that_falls_with_exposure_is_not_a_dark_current():
+    """A dark variance that falls with the exposure (seen at the quantisation floor) gives no dark current
+    from it: not a negative one with an interval, nor a traceback, but NaN with its reason."""
+    sweep = simulate_steps(seed=4)
+    dark = sweep.dark.assign(var_dn2=sweep.dark["var_dn2"].to_numpy()[::-1] * np.linspace(1.5, 0.5, len(sweep.dark)))
+    res = characterize(dataclasses.replace(sweep, dark=dark), seed=1, n_draws=500)
+    t = res.table.set_index("quantity")
+    for q in ("dark_current_var", "dark_current_difference"):
+        assert np.isnan(t.loc[q, "median"]) and "falls with the exposure time" in t.loc[q, "note"], q
+    assert t.loc["dark_current_mean", "q2.5"] >= 0
 
 
 def test_posteriors_cover_simulated_sensors():
@@ -162,6 +192,17 @@ def test_characterize_cli(tmp_path):
     k = next(q for q in js["quantities"] if q["quantity"] == "K")
     assert k["standard"] == pytest.approx(0.28006, rel=1e-4) and js["dark_current_compatible"] is True
     assert (tmp_path / "c" / "photon_transfer.png").stat().st_size > 10_000
+    assert js["operating_point"]["bits"] == 12 and js["source"].endswith("steps.csv")
+
+
+def test_a_shipped_example_is_named_not_located(tmp_path, capsys):
+    """The datasheet of a shipped example names it, not the folder the package is installed in."""
+    assert main(["characterize", "emva", "--out", str(tmp_path / "c")]) == 0
+    js = json.loads((tmp_path / "c" / "characterization.json").read_text())
+    assert js["source"] == "the shipped example emva"
+    html = (tmp_path / "c" / "datasheet.html").read_text()
+    assert "site-packages" not in html and "/bayescal/" not in html
+    assert "12-bit, 50 bright steps" in capsys.readouterr().out
 
 
 def test_illumination_sweep_layout_and_undetermined_dark_current():
