@@ -29,7 +29,9 @@ def _run(cmd: list, cwd: Path, timeout: float = 900) -> subprocess.CompletedProc
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("dist")
-    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out), str(ROOT)], cwd=out)
+    built = _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-v", "-w", str(out), str(ROOT)], cwd=out)
+    # no packaging warning (a data folder that Python sees as a package must be listed as one)
+    assert "Package would be ignored" not in built.stdout + built.stderr
     (found,) = out.glob("bayescal-*.whl")
     return found
 
@@ -41,7 +43,8 @@ def test_the_wheel_carries_the_licences_and_the_examples(wheel):
     # the notice of the CC BY-SA reference data shipped among the examples
     assert any(n.endswith("models/README.md") for n in licences), licences
     assert "bayescal/models/seed000_bayer.toml" in names and "bayescal/models/emva_refset001_steps.csv" in names
-    assert "bayescal/__main__.py" in names
+    assert "bayescal/__main__.py" in names and "bayescal/fitting/diagnosis/search.py" in names
+    assert "bayescal/models/ccd_fits/flat00a.fits" in names
     # nothing of the repository's tests or benchmarks
     assert not [n for n in names if n.startswith(("tests/", "benchmarks/"))]
 

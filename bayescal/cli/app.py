@@ -20,8 +20,34 @@ __all__ = ["main"]
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``bayescal`` command (exit codes in the module docstring)."""
     parser = build()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # a command line not understood: a script asking for JSON still gets a document
+        if exc.code not in (0, None) and "--json" in (sys.argv[1:] if argv is None else argv):
+            from bayescal.cli.results import dump
+
+            error = "the command line was not understood (the usage message is on stderr)"
+            dump({"verb": None, "exit": exc.code, "error": error}, [])
+        raise
+    if getattr(args, "json", False):
+        from bayescal.cli.results import dump, json_document
+        from bayescal.io.outputs import committed
+
+        before = len(committed())  # the folders this command puts in place, not an earlier one's in this process
+        with json_document(args.verb) as doc:
+            code = _run(args)
+        doc["exit"] = code
+        doc.setdefault("error", None)
+        dump(doc, list(dict.fromkeys(committed()[before:])))
+        return code
+    return _run(args)
+
+
+def _run(args) -> int:
+    """The verb inside bayescal's numerics, its errors mapped to exit codes (the message also goes into a
+    ``--json`` document)."""
     from bayescal._config import numerics
+    from bayescal.cli.results import emit
     from bayescal.errors import BayescalError
     from bayescal.io.outputs import check_output_file, overwrite_allowed, reading, writing_as
 
@@ -32,10 +58,14 @@ def main(argv: list[str] | None = None) -> int:
                 check_output_file(*output_files(args))  # before any work: a file of the user's is never replaced
                 return args.func(args)
     except BayescalError as exc:
-        print(f"bayescal: error: {_as_given(str(exc))}", file=sys.stderr)
+        message = _as_given(str(exc))
+        print(f"bayescal: error: {message}", file=sys.stderr)
+        emit(error=message)
         return 2
     except (OSError, UnicodeError) as exc:  # unreadable or unwritable paths, wrong encodings
-        print(f"bayescal: error: {_as_given(_os_message(exc))}", file=sys.stderr)
+        message = _as_given(_os_message(exc))
+        print(f"bayescal: error: {message}", file=sys.stderr)
+        emit(error=message)
         return 2
     except KeyboardInterrupt:
         _interrupted()

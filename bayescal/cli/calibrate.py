@@ -41,6 +41,7 @@ def run_fit(
 
     from bayescal import FitFailedWarning, fit
     from bayescal.cli.progress import progress_bar, stage_reporter
+    from bayescal.cli.results import emit
     from bayescal.fitting.diagnosis import fit_diagnosed
     from bayescal.inference import registry as backends
 
@@ -92,6 +93,7 @@ def run_fit(
                 )
             )
     print(result.summary_text())
+    emit(ok=bool(result.ok), verdict=result.diagnostics.verdict, diagnosis=None if found is None else found.to_dict())
     if report and result.posterior is not None:
         from bayescal.report.html import write_report
 
@@ -152,7 +154,11 @@ def cmd_select(args) -> int:
                 fleet, spec, "laplace" if args.backend not in ("laplace", "nuts") else args.backend, seed=args.seed
             )
         print("PSIS-LOO over units (elpd_diff: this pooling minus the best; dse: its standard error):")
-        print(compare_pooling(fleet, spec, fits, seed=args.seed).to_string(float_format="%.2f"))
+        pooling = compare_pooling(fleet, spec, fits, seed=args.seed)
+        print(pooling.to_string(float_format="%.2f"))
+        from bayescal.cli.results import emit
+
+        emit(comparison=pooling.reset_index(names="pooling"))
         return 0
     table, spec = load_table(args.data), load_spec(args.model)
     off = tuple(x for x in args.without.split(",") if x)
@@ -167,6 +173,9 @@ def cmd_select(args) -> int:
         cmp = compare_specs(table, specs, backend=args.backend, seed=args.seed)
     print("PSIS-LOO (elpd_diff: this model minus the best; dse: its standard error):")
     print(cmp.to_string(float_format="%.2f"))
+    from bayescal.cli.results import emit
+
+    emit(comparison=cmp.reset_index(names="model"))
     best = cmp.index[0]
     print(f"best: {best}" + ("" if cmp.iloc[0]["fit_ok"] else " (its fit FAILED its diagnostics)"))
     ft = f_test_orders(table, spec, max_order=max(int(o) for o in args.orders))

@@ -28,6 +28,9 @@ def cmd_design(args) -> int:
         progress=stage_reporter(args.quiet),
     )
     print(plan.summary())
+    from bayescal.cli.results import emit
+
+    emit(summary=plan.summary(), met=bool(plan.met), over_budget=bool(plan.over_budget))
     if args.out is not None:
         out = plan.save(Path(args.out))
         print(f"wrote {out / 'design.toml'} (read by `bayescal simulate --design`), groups.csv and widths.csv")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 
 def cmd_examples(args) -> int:
+    from bayescal.cli.results import emit
     from bayescal.errors import SpecError
     from bayescal.io.resources import DESCRIPTOR, example_path, examples
 
@@ -17,6 +18,7 @@ def cmd_examples(args) -> int:
         for e in shipped:
             print(f"  {e.name:<{width}}  {e.kind:<12}  {e.about}")
         print("Copy one to edit it: bayescal examples --copy NAME [--to DIR]")
+        emit(examples=[{"name": e.name, "kind": e.kind, "about": e.about} for e in shipped])
         return 0
     picked = [e for e in shipped if e.name == args.copy]
     if not picked:  # a name's every file: seed003 is the film's spec and its example data
@@ -43,6 +45,7 @@ def cmd_examples(args) -> int:
         else:
             shutil.copyfile(e.path, target / e.path.name)
         print(f"copied {e.kind} {e.name} to {target / _copied(e).name}")
+    emit(copied=[str(target / _copied(e).name) for e in picked])
     return 0
 
 

@@ -65,14 +65,19 @@ def cmd_fleet_query(args) -> int:
         if warning:
             print(f"bayescal: warning: {warning}", file=sys.stderr)
     values = fleet.at(camera, args.date, seed=args.seed)
+    from bayescal.cli.results import emit
+
     label = camera or "a new camera of the type"
     print(f"{label} at {args.date or 'its last campaign'}:")
+    rows = []
     for k, kind in enumerate(fleet.kinds):
         for c, ch in enumerate(fleet.channels):
             v = np.exp(values[:, k, c]) if kind == "log_gain" else values[:, k, c]
             lo, med, hi = np.quantile(v, [0.025, 0.5, 0.975])
             name = "gain A1" if kind == "log_gain" else ("offset A0" if kind == "offset" else kind)
             print(f"  {ch} {name}: {med:.6g} [{lo:.6g}, {hi:.6g}]")
+            rows.append({"channel": ch, "quantity": name, "median": med, "q2.5": lo, "q97.5": hi})
+    emit(camera=camera, date=args.date, values=rows)
     if args.drift_percent is not None and camera is not None:  # a camera is required above
         p = fleet.drift_probability(camera, args.date, args.drift_percent, seed=args.seed)
         print(f"P(gain drifted by more than {args.drift_percent:g} % by {args.date}) = {p:.3f}")
@@ -82,6 +87,11 @@ def cmd_fleet_query(args) -> int:
         if caveat:
             print(f"bayescal: note: {caveat}", file=sys.stderr)
         when = fleet.recalibration_date(camera, args.drift_percent, args.probability)
+        emit(
+            drift_probability=p,
+            relative_drift_probability=rel,
+            recalibrate_by=None if when is None else when.date().isoformat(),
+        )
         print(
             f"recalibrate by {when.date().isoformat()} (risk {args.probability:g} of a {args.drift_percent:g} % drift)"
             if when is not None

@@ -25,7 +25,7 @@ SEED_HELP = "seed of every random number (default 0): the same seed gives the sa
 
 def build() -> argparse.ArgumentParser:
     """The argument parser of every verb (each calls its ``cmd_*`` function with the parsed arguments)."""
-    from bayescal import __version__
+    from bayescal._version import describe
 
     p = argparse.ArgumentParser(
         prog="bayescal",
@@ -33,12 +33,18 @@ def build() -> argparse.ArgumentParser:
         epilog="exit codes: 0 ok, 2 bad input (names the file, row, column or key), "
         "3 the fit failed its diagnostics or does not fit its data, 130 interrupted",
     )
-    p.add_argument("--version", action="version", version=f"bayescal {__version__}")
+    p.add_argument("--version", action="version", version=f"bayescal {describe()}")
     sub = p.add_subparsers(required=True, metavar="COMMAND")
     for verb in VERBS:
         verb(sub)
     for name, verb_parser in sub.choices.items():
         verb_parser.set_defaults(verb=name)
+        verb_parser.add_argument(
+            "--json",
+            action="store_true",
+            help="print one JSON document on stdout for a script: the results, the exit status, the output "
+            "folders and the JSON files written there (the text goes to stderr)",
+        )
     return p
 
 

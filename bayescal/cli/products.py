@@ -24,6 +24,7 @@ def setting_of(args, cal):
 def cmd_predict(args) -> int:
     import numpy as np
 
+    from bayescal.cli.results import emit
     from bayescal.io.outputs import write_text_atomic
     from bayescal.posterior.calibration import Calibration
     from bayescal.prediction.readings import predict
@@ -45,6 +46,7 @@ def cmd_predict(args) -> int:
         print(f"EXTRAPOLATION: {why}", file=sys.stderr)
     if args.out:
         write_text_atomic(args.out, table.to_csv(index=False, float_format="%.8g"))
+    emit(stimulus=cal.stimulus, unit=cal.unit, setting=vars(setting), predictions=table)
     return 0
 
 
@@ -60,6 +62,7 @@ def cmd_invert(args) -> int:
 def _invert(args, images) -> int:
     import numpy as np
 
+    from bayescal.cli.results import emit
     from bayescal.errors import SpecError
     from bayescal.io.outputs import write_text_atomic
     from bayescal.posterior.calibration import Calibration
@@ -96,6 +99,7 @@ def _invert(args, images) -> int:
         print(table.to_string(index=False, float_format="%.6g"))
         if args.out:
             write_text_atomic(args.out, table.to_csv(index=False, float_format="%.10g"))
+        emit(stimulus=cal.stimulus, unit=cal.unit, description=res.describe(cal.stimulus), inversions=table)
         return 0
     return _invert_images(args, cal, setting, images, image)
 
@@ -103,6 +107,7 @@ def _invert(args, images) -> int:
 def _invert_images(args, cal, setting, images, image) -> int:
     """One image into ``--out``, or a survey's frames into ``--out/<frame>/`` (here, or on a Dask cluster)."""
     from bayescal.cli.progress import progress_bar
+    from bayescal.cli.results import emit
     from bayescal.prediction.frames import FrameJob, frame_outputs, invert_frames
 
     survey = image is None
@@ -133,6 +138,7 @@ def _invert_images(args, cal, setting, images, image) -> int:
         )
         written = sorted(p.name for p in Path(args.out).iterdir() if not p.name.startswith("."))
         print(f"wrote {args.out}/: " + ", ".join(written))
+        emit(frames=[r])
         return 0
     where = f"the workers of {args.scheduler}" if args.scheduler else "this machine"
     print(f"inverting {len(jobs)} frames on {where} into {args.out}/<frame>/", file=sys.stderr)
@@ -144,6 +150,7 @@ def _invert_images(args, cal, setting, images, image) -> int:
         f"{total['below_dark']} at/below dark (upper bound only), {total['extrapolated']} beyond the calibrated range"
     )
     print(f"wrote {len(results)} folders under {args.out}/ (one per frame: radiance.nc, median/lower/upper/bound.tif)")
+    emit(frames=results, totals=total)
     return 0
 
 
@@ -190,6 +197,7 @@ def _invert_with_maps(args, cal, setting, path, image) -> int:
 def cmd_plan(args) -> int:
     import numpy as np
 
+    from bayescal.cli.results import emit
     from bayescal.model.setting import Setting
     from bayescal.posterior.calibration import Calibration
     from bayescal.prediction.plan import plan_exposure
@@ -220,6 +228,13 @@ def cmd_plan(args) -> int:
     print(shown.drop(columns=["why"]).to_string(index=False, float_format="%.4g"))
     for why in sorted(set("; ".join(shown.loc[shown.extrapolated, "why"]).split("; ")) - {""}):
         print(f"EXTRAPOLATION: {why}", file=sys.stderr)
+    emit(
+        stimulus_median=float(np.median(plan.stimulus)),
+        window=[lo, hi],
+        best={"exposure_s": b.exposure_s, "gain": b.gain, "tdi_stages": b.tdi_stages},
+        probability=plan.probability,
+        settings=plan.table,
+    )
     return 0
 
 

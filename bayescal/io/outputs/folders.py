@@ -282,7 +282,7 @@ def staged_directory(out_dir: str | os.PathLike, kind: str) -> Iterator[Stage]:
     step with interrupts held back; an earlier output there goes as a whole (see
     :func:`check_output_dir`, which is checked again just before the swap).
     """
-    from bayescal._version import __version__
+    from bayescal._version import __version__, commit
 
     out_dir = check_output_dir(out_dir, kind)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -299,6 +299,7 @@ def staged_directory(out_dir: str | os.PathLike, kind: str) -> Iterator[Stage]:
                 "kind": kind,
                 "run_id": run_id,
                 "bayescal_version": __version__,
+                "bayescal_commit": commit(),  # the checkout's commit; None from a wheel
                 "files": _listing(staged, run_id),
             }
             with write_errors(out_dir):
