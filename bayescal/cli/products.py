@@ -228,7 +228,14 @@ def cmd_plan(args) -> int:
     print(shown.drop(columns=["why"]).to_string(index=False, float_format="%.4g"))
     for why in sorted(set("; ".join(shown.loc[shown.extrapolated, "why"]).split("; ")) - {""}):
         print(f"EXTRAPOLATION: {why}", file=sys.stderr)
+    for r in plan.dropped.itertuples():
+        print(
+            f"DROPPED: exposure {r.exposure_s:g} s, gain {r.gain:g}, TDI {r.tdi_stages:g}: {r.why}", file=sys.stderr
+        )
+    if len(plan.table) > args.top:
+        print(f"(showing the best {args.top} of {len(plan.table)} settings ranked; --top shows more)", file=sys.stderr)
     emit(
+        dropped=plan.dropped,
         stimulus_median=float(np.median(plan.stimulus)),
         window=[lo, hi],
         best={"exposure_s": b.exposure_s, "gain": b.gain, "tdi_stages": b.tdi_stages},

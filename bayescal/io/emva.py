@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from bayescal.errors import TableError
+from bayescal.io.resources import did_you_mean
 
 __all__ = [
     "Steps",
@@ -196,7 +197,9 @@ def read_groups(path: str | os.PathLike) -> tuple[int, list[ImageGroup]]:
     """
     path = Path(path)
     if not path.is_file():
-        raise TableError(f"no such EMVA 1288 input: {path}" if not path.exists() else f"{path} is not a file")
+        raise TableError(
+            f"no such EMVA 1288 input: {path}{did_you_mean(path)}" if not path.exists() else f"{path} is not a file"
+        )
     if path.suffix.lower() == ".npz":
         return _npz_groups(path)
     bits, groups = None, []
@@ -318,7 +321,9 @@ def load_steps(path: str | os.PathLike) -> Steps:
     if path.is_dir() and (path / DESCRIPTOR).is_file():
         path = path / DESCRIPTOR
     if not path.is_file():
-        raise TableError(f"no such EMVA 1288 input: {path}" if not path.exists() else f"{path} is not a file")
+        raise TableError(
+            f"no such EMVA 1288 input: {path}{did_you_mean(path)}" if not path.exists() else f"{path} is not a file"
+        )
     if path.suffix.lower() == ".csv":
         return _from_csv(path)
     return read_descriptor(path)

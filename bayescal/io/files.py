@@ -24,7 +24,9 @@ def read_text(path: str | os.PathLike, error: type[Exception], what: str = "file
     """
     path = Path(path)
     if not path.exists():
-        raise error(f"no such {what}: {path}")
+        from bayescal.io.resources import did_you_mean
+
+        raise error(f"no such {what}: {path}{did_you_mean(path)}")
     if path.is_dir():
         raise error(f"{path} is a directory; expected a {what}")
     try:
@@ -60,7 +62,9 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     path = Path(path)
     suffix = path.suffix.lower()
     if not path.exists():
-        raise FileNotFoundError(f"no such image: {path}")
+        from bayescal.io.resources import did_you_mean
+
+        raise FileNotFoundError(f"no such image: {path}{did_you_mean(path)}")
     if suffix not in _IMAGE_SUFFIXES:
         raise TableError(f"{path}: unsupported image type '{suffix}'; expected {', '.join(_IMAGE_SUFFIXES)}")
     if path.is_dir():

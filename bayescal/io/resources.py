@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from importlib.resources import files
 from pathlib import Path
 
-__all__ = ["models_dir", "Example", "examples", "example_path"]
+__all__ = ["models_dir", "Example", "examples", "example_path", "did_you_mean"]
 
 
 def models_dir() -> Path:
@@ -106,3 +106,27 @@ def example_path(name: str | os.PathLike, kind: str) -> Path:
             return e.path
     prefix = [e for e in mine if e.name.split("_")[0] == str(name)]
     return prefix[0].path if len(prefix) == 1 else path
+
+
+def did_you_mean(path: str | os.PathLike) -> str:
+    """For a path that does not exist: ``"; did you mean 'seed000'?"`` naming the closest shipped example (for a
+    bare name) or the closest file beside it, or ``""`` when nothing is close (difflib's ratio 0.6 or more)."""
+    import difflib
+
+    path = Path(path)
+    shipped: set[str] = set()
+    if len(path.parts) == 1 and not path.suffix:
+        names = [e.name for e in examples()]
+        shipped = set(names) | {n.split("_")[0] for n in names}
+    try:
+        beside = [p.name for p in path.parent.iterdir()]
+    except OSError:
+        beside = []
+    def rank(c: str) -> tuple:  # the closest; among equals, what the name begins, then the first by name
+        return -difflib.SequenceMatcher(None, path.name, c).ratio(), not c.startswith(path.name), c
+
+    close = sorted(difflib.get_close_matches(path.name, sorted(shipped) + beside, n=5, cutoff=0.6), key=rank)
+    if not close:
+        return ""
+    where = " (a shipped example; `bayescal examples` lists them)" if close[0] in shipped else ""
+    return f"; did you mean '{close[0]}'{where}?"

@@ -18,6 +18,7 @@ from bayescal.errors import TableError
 from bayescal.io.files import read_text
 from bayescal.io.limits import limit
 from bayescal.io.outputs import atomic_path
+from bayescal.io.resources import did_you_mean
 
 __all__ = ["MeasurementTable", "load_table", "read_frame", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
@@ -146,7 +147,9 @@ def read_frame(path: str | os.PathLike) -> pd.DataFrame:
     suffix = path.suffix.lower()
     if suffix == ".parquet":
         if not path.is_file():
-            raise TableError(f"no such file: {path}" if not path.exists() else f"{path} is not a file")
+            raise TableError(
+                f"no such file: {path}{did_you_mean(path)}" if not path.exists() else f"{path} is not a file"
+            )
         try:
             return pd.read_parquet(path)
         except Exception as exc:  # pyarrow raises its own types for every kind of corrupt file

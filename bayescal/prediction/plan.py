@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -52,12 +52,18 @@ class Plan:
     stimulus : numpy.ndarray
         Draws of the scene's stimulus used for the prediction.
     window : tuple of float
+    dropped : pandas.DataFrame
+        The settings asked for that were not ranked, each with why (exposure_s, gain, tdi_stages, why):
+        a gain the calibration has no dark level for, or an extrapolation where none was allowed.
     """
 
     table: pd.DataFrame
     stimulus: np.ndarray
     window: tuple[float, float]
     channel: str
+    dropped: pd.DataFrame = field(
+        default_factory=lambda: pd.DataFrame(columns=["exposure_s", "gain", "tdi_stages", "why"])
+    )
 
     @property
     def best(self) -> Setting:
@@ -118,15 +124,18 @@ def plan_exposure(
         stim = np.maximum(radiance_draws(cal, channel, np.array([dn]), current, n_avg=n_avg, z=z)[0], 0.0)
     else:
         stim = np.full(cal.n_draws, float(stimulus))
-    rows = []
+    rows, dropped = [], []
     for t, g, m in itertools.product(exposures, gains, tdi_stages):
         setting = Setting(float(t), float(g), float(m))
+        where = {"exposure_s": setting.exposure_s, "gain": setting.gain, "tdi_stages": setting.tdi_stages}
         try:
             reading = cal.sample_dn(channel, stim, setting, rng, n_avg, per_draw=True)  # one stimulus per draw
-        except SpecError:
-            continue  # a gain without dark calibration cannot be planned for
+        except SpecError as exc:  # a gain without dark calibration cannot be planned for
+            dropped.append(where | {"why": str(exc)})
+            continue
         why = cal.flags(setting, float(np.median(stim)))
         if why and not allow_extrapolation:
+            dropped.append(where | {"why": "extrapolated, and extrapolation was not allowed: " + "; ".join(why)})
             continue
         lo, med, hi = np.quantile(reading, [0.025, 0.5, 0.975])
         rows.append(
@@ -144,8 +153,10 @@ def plan_exposure(
             }
         )
     if not rows:
-        raise SpecError("no allowed setting has a dark calibration; check gains against the calibrated ones")
+        first = f" (the first: {dropped[0]['why']})" if dropped else ""
+        raise SpecError(f"none of the {len(dropped)} settings asked for can be planned{first}")
     table = pd.DataFrame(rows).sort_values(
         ["p_in_window", "gain", "exposure_s", "tdi_stages"], ascending=[False, True, True, True], kind="stable"
     )
-    return Plan(table.reset_index(drop=True), stim, (low, high), channel)
+    gone = pd.DataFrame(dropped, columns=["exposure_s", "gain", "tdi_stages", "why"])
+    return Plan(table.reset_index(drop=True), stim, (low, high), channel, gone)

@@ -3,6 +3,8 @@
 import subprocess
 import sys
 
+from bayescal.cli import main
+
 
 def _bayescal(cwd, *args):
     proc = subprocess.run(
@@ -35,3 +37,16 @@ def test_examples_by_name_from_any_folder(tmp_path):
     assert (tmp_path / "mine" / "seed002_tdi.toml").read_text() == "# my edits\n"
     rc, out = _bayescal(tmp_path, "examples", "--copy", "nonesuch")
     assert rc == 2 and "no shipped example 'nonesuch'" in out
+
+
+def test_a_mistyped_name_gets_a_did_you_mean(tmp_path, capsys):
+    """A name cut short or misspelt: the closest shipped example, or the closest file beside the path."""
+    from bayescal.io.resources import did_you_mean
+
+    assert did_you_mean("seed00") == "; did you mean 'seed000' (a shipped example; `bayescal examples` lists them)?"
+    assert "'emva'" in did_you_mean("emvaa")
+    (tmp_path / "campaign_2026.csv").write_text("x\n")
+    assert did_you_mean(tmp_path / "campaing_2026.csv") == "; did you mean 'campaign_2026.csv'?"
+    assert did_you_mean(tmp_path / "zzz.csv") == ""  # nothing close: nothing suggested
+    code = main(["fit", str(tmp_path / "campain_2026.csv"), "--model", "seed000", "--out", str(tmp_path / "F")])
+    assert code == 2 and "did you mean 'campaign_2026.csv'?" in capsys.readouterr().err

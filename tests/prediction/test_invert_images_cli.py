@@ -124,6 +124,13 @@ def test_predict_and_plan_cli(calibrated, tmp_path, capsys):
         == 0
     )
     assert "best: exposure 0.01 s, gain 1" in capsys.readouterr().out
+    # a gain the calibration has no dark level for is not ranked, and the plan says so, by setting
+    plan = bc.plan_exposure(cal, "G", stimulus=5.0, exposures=[0.004], gains=[1.0, 7.0])
+    assert list(plan.table.gain) == [1.0] and list(plan.dropped.gain) == [7.0]
+    assert "7" in plan.dropped.why.iloc[0]
+    argv = ["plan", str(fitdir), "--channel", "G", "--radiance", "5", "--exposures", "0.004", "--gains", "1,7"]
+    assert main(argv) == 0
+    assert "DROPPED: exposure 0.004 s, gain 7, TDI 1:" in capsys.readouterr().err
 
 
 def test_bad_prediction_inputs(calibrated, tmp_path):
