@@ -102,7 +102,8 @@ def _meaning(doc: str, key: str) -> str:
         return markdown(listed[key])
     text = re.sub(r"\s+", " ", doc or "")
     sentences = re.split(r"(?<=[.;])\s+(?=[A-Z`(])", text)
-    said = [s for s in sentences if f"``{key}``" in s or f"``{key.split('_')[0]}_*``" in s]
+    named = re.compile(rf"``{re.escape(key)}(?:``| = | : )|``{re.escape(key.split('_')[0])}_\*``")
+    said = [s for s in sentences if named.search(s)]
     return markdown(" ".join(said)) if said else ""
 
 
@@ -128,7 +129,9 @@ def _table(cls: type, title: str, skip: tuple[str, ...] = ()) -> list[str]:
         if f.name in skip or not f.init:
             continue
         kind = str(f.type).replace("|", "or")
-        rows.append(f"| `{f.name}` | `{kind}` | {_default(f)} | {_meaning(doc, f.name)} |")
+        # the class's own documentation, else that of the class it refines (a drift's section documents its keys once)
+        meaning = next((m for c in cls.__mro__ if (m := _meaning(c.__doc__ or "", f.name))), "")
+        rows.append(f"| `{f.name}` | `{kind}` | {_default(f)} | {meaning} |")
     return rows + [""]
 
 

@@ -35,3 +35,18 @@ def test_the_spec_reference_is_current_and_lists_every_key(reference):
                 assert f"| `{key}` |" in page, (section, key)
         elif section not in ("name", "description"):
             assert f"| `{section}` |" in page, section
+
+
+def test_every_spec_key_has_a_meaning():
+    """Each key's row says what the key means (from its section's documentation), none left blank."""
+    page = (ROOT / "docs" / "spec.md").read_text()
+    rows = [line for line in page.splitlines() if line.startswith("| `")]
+    blank = [row.split("|")[1].strip() for row in rows if not row.rstrip(" |").split("|")[-1].strip()]
+    assert len(rows) > 100 and blank == []
+
+
+def test_every_guide_reads_in_minutes():
+    """A guide teaches one task: at most 1,500 words (the why is in the concepts pages, the numbers in
+    validation)."""
+    words = {p.name: len(p.read_text().split()) for p in (ROOT / "docs" / "guides").glob("*.md")}
+    assert len(words) >= 8 and max(words.values()) <= 1500, words

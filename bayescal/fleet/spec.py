@@ -24,7 +24,7 @@ class FleetSpec:
     Per channel, a camera's log gain, offset and nonlinearity are its type's mean plus a camera
     effect shared by its channels plus a channel-within-camera deviation, each Normal with a fitted
     spread (``pooling``: ``partial``; ``none`` fits every camera on its own; ``complete`` makes the
-    cameras one).  With campaigns at two or more dates, log gain and offset drift: a trend per
+    cameras one).  With campaigns at two or more dates (and ``drift`` on), log gain and offset drift: a trend per
     camera, its rate drawn from the fleet's (mean and spread fitted), plus a random walk (``walk``)
     whose diffusion is fitted, plus each campaign's own state of the camera (``jitter``: a remount,
     a thermal state; Normal, its spread fitted, prior HalfNormal(``jitter_prior``)).  ``sphere``:

@@ -49,6 +49,15 @@ class Reference:
 
     Seed 000 Table 1 uses gain 1, 1/250 s; seed 002 eq. 9-10 use M = 48,
     T_int = 105 us, g = 1.
+
+    Attributes
+    ----------
+    exposure_s : float
+        The reference exposure (or TDI line) time, s.
+    gain : float
+        The reference programmable gain factor.
+    tdi_stages : float
+        The reference number of TDI stages M (1 for an area sensor).
     """
 
     exposure_s: float
@@ -85,6 +94,25 @@ class InferenceSpec:
     own diagnostics decide the verdict (0 turns retrying off).  On 200 simulated 8-bit,
     2-12 DN datasets, 0.8 left 8 fits with 1-7 divergences; 0.95 left none.  The pooled
     seed-000 channels (``pooled = true``) leave 2-6 at 0.95 and none at 0.99.
+
+    Attributes
+    ----------
+    chains, draws, warmup : int
+        NUTS (and BlackJAX) chains, draws kept per chain, and warmup iterations per chain.
+    target_accept : float
+        NUTS's target acceptance probability (higher: smaller steps, fewer divergences, slower).
+    max_tree_depth : int
+        NUTS's largest tree: at most 2^depth leapfrog steps per draw.
+    dense_mass : bool
+        Adapt a dense mass matrix (the whitened coordinates make a diagonal one enough).
+    laplace_draws : int
+        Draws taken from the Laplace approximation (the ``laplace`` backend's posterior sample).
+    emcee_walkers, emcee_steps, emcee_burn : int
+        The emcee cross-check: walkers (0: twice the parameters, at least 32), steps, and steps discarded.
+    max_rhat : float
+        A fit fails when some reported quantity's R-hat exceeds this.
+    min_ess : float
+        A fit fails when some reported quantity's bulk or tail effective sample size is below this.
     """
 
     chains: int = 4

@@ -56,6 +56,14 @@ class DarkSpec:
     Priors (fractions of full scale): each offset Normal(``offset_prior_mean``,
     ``offset_prior_sd``), each dark slope (per longest exposure of the table)
     Normal(0, ``slope_prior_sd``).
+
+    Attributes
+    ----------
+    exposure_slope : bool
+        The dark level grows linearly with the exposure (the dark current); off for a camera whose dark
+        frames were taken at one exposure, or whose dark current is subtracted on the chip.
+    temperature_ref_c : float
+        The temperature (degC) the dark current's doubling refers to: ``slope(T_ref)`` is reported.
     """
 
     gain_dependence: Literal["per_setting", "proportional"] = "per_setting"

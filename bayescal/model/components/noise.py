@@ -38,6 +38,14 @@ class NoiseSpec:
     almost no information about them.  ``kind = "measured"``: the table's
     ``dn_var`` column is the per-pixel temporal variance.  ``excess_dn`` is the half-normal scale of an extra
     per-row scatter (lamp drift, model error); 0 turns it off.
+
+    Attributes
+    ----------
+    read_noise_dn : float
+        The read noise ``r`` (DN, at the reference gain), from photon transfer.
+    conversion_gain : float
+        The conversion gain ``K`` (DN per electron, at the reference gain), from photon transfer
+        (``bayescal characterize`` measures it).
     """
 
     kind: Literal["physical", "measured"] = "physical"

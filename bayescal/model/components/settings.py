@@ -66,6 +66,12 @@ class SettingsSpec:
     above and 8.8 % below their targets (RMS of log factors 0.070).  With 5 %
     the held-out prediction of a setting 8.8 % low excluded the camera's
     reading (tests/fitting/test_misspecification.py).
+
+    Attributes
+    ----------
+    gain_tolerance, exposure_tolerance, tdi_tolerance : float
+        The prior mean spread (relative sd) of the effective factors of the gain steps, the exposure
+        settings and the TDI stage counts; 0: that kind's settings are exact.
     """
 
     gain_tolerance: float = 0.07
