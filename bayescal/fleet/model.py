@@ -321,7 +321,8 @@ def fleet_data(fits: UnitFits, fleet_spec: FleetSpec, common_rel: float) -> tupl
     prior_var_g[:, :n_ch] = 9.0 if plan.pooling != "none" else ABSENT_VAR
     if drift:
         prior_var_g[:2, n_ch] = fleet_spec.rate_prior**2 if plan.pooling != "none" else ABSENT_VAR
-    sphere_var = (np.log1p(common_rel) / scale[0]) ** 2 if common_rel > 0 else ABSENT_VAR
+    # the camera's convention (bayescal.model.components.sphere): common_rel is the sd of the log scale
+    sphere_var = (common_rel / scale[0]) ** 2 if common_rel > 0 else ABSENT_VAR
     prior_var_g[0, n_ch + 1 : n_ch + 1 + plan.n_spheres] = sphere_var
     if plan.n_campaigns:
         prior_var_g[0, n_ch + 1 + plan.n_spheres :] = (fleet_spec.campaign_sd / scale[0]) ** 2

@@ -676,6 +676,21 @@ def test_refitting_the_same_reports_rebuilds_the_same_blocks(small_fleet):
         np.testing.assert_allclose(b, a, rtol=1e-8, atol=1e-10 * np.abs(a).max(), err_msg=name)
 
 
+def test_the_sphere_scale_means_what_it_means_for_one_camera(small_fleet):
+    """``[sphere] common_rel`` is the sd of the log of the sphere's scale for a camera
+    (:func:`bayescal.model.components.sphere.fold_common_scale`) and for the fleet alike: the fleet's
+    prior on a campaign's sphere, back in log-gain units, has that sd (it read ``log1p(common_rel)``)."""
+    from bayescal.model.components.sphere import fold_common_scale
+
+    fleet = fleet_from_frame(_frame(small_fleet), source="small")
+    for rel in (0.03, 0.2):
+        data, _ = fleet_data(_Fits(fleet, 3, np.random.default_rng(5)), FleetSpec(), rel)
+        assert data.sphere_sd * data.scale[0] == pytest.approx(rel, rel=1e-12)
+        # the camera: A1_abs = A1_rel / s, so log A1_abs has the same sd as log s
+        a, _ = fold_common_scale(np.ones((200_000, 1, 2)), rel, np.random.default_rng(0))
+        assert np.log(a[..., 1]).std() == pytest.approx(rel, rel=0.01)  # MC sd of an sd: 0.16 %
+
+
 @pytest.mark.slow
 def test_stage_two_passes_simulation_based_calibration():
     """Fleets drawn from stage two's own prior (20 of them; benchmarks/fleet_sbc.py runs 100):
