@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from bayescal._parallel import pairwise_map
+from bayescal._parallel import parallel_map
 from bayescal.inference.laplace import laplace, laplace_draws
 
 __all__ = ["holdout_groups", "holdout_checks"]
@@ -109,7 +109,7 @@ def holdout_checks(
         _, _, _, mask, _ = group
         return laplace(program, data._replace(keep=np.asarray(data.keep) & ~mask), mode, polish=False)
 
-    results = pairwise_map(refit, groups)  # independent refits, two at once
+    results = parallel_map(refit, groups)  # independent refits, one per core
     refits, failed = [], {}  # each group refitted: (kind, name, rows, draws); failed groups by position
     for (position, kind, name, _, idx), result in zip(groups, results, strict=True):
         if not (result.positive_definite and result.converged):

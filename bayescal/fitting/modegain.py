@@ -19,7 +19,6 @@ candidate screened out would have been adopted.
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
@@ -61,9 +60,12 @@ def mode_fit(table: MeasurementTable, spec: ModelSpec) -> ModeFit:
 
 @computes
 def mode_fits(table: MeasurementTable, specs: dict[str, ModelSpec], workers: int | None = None) -> dict[str, ModeFit]:
-    """:func:`mode_fit` of each spec, ``workers`` at a time in threads (default: the CPUs, at most 4): a new
-    structure's programs are mostly loaded and run outside the interpreter, so two cores load two at once."""
-    workers = workers or min(4, os.cpu_count() or 1)
+    """:func:`mode_fit` of each spec, ``workers`` at a time in threads (default: one per core,
+    :func:`bayescal._parallel.workers`): a new structure's programs are mostly loaded and run outside the
+    interpreter, so two cores load two at once."""
+    from bayescal._parallel import workers as threads
+
+    workers = workers or threads(len(specs))
     if workers <= 1 or len(specs) <= 1:
         return {name: mode_fit(table, spec) for name, spec in specs.items()}
     with ThreadPoolExecutor(workers) as pool:

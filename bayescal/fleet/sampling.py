@@ -49,10 +49,6 @@ class FleetDraws:
     diagnostics: dict
 
 
-#: threads that run chains side by side (XLA releases the GIL while a chain runs)
-THREADS = 2
-
-
 def scale_priors(plan: Plan) -> dict[str, float | np.ndarray]:
     """The half-normal prior scale of every sampled scale of stage two (of ``kappa - 1`` for the
     excess: one per kind and direction, :meth:`~.model.Plan.excess_priors`)."""
@@ -168,7 +164,7 @@ def _latent_program(plan: Plan):
 
 def _latents(plan: Plan, hyper: dict, args: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """:func:`.model.conditional_draws` (the same normal variates, so the same draws) by the compiled
-    program, in chunks of :data:`DRAW_CHUNK` draws (the last one padded) on :data:`THREADS` threads."""
+    program, in chunks of :data:`DRAW_CHUNK` draws (the last one padded), one chunk per core at a time."""
     import jax
 
     sc, kappa = draw_scales(plan, hyper, args)
@@ -182,7 +178,7 @@ def _latents(plan: Plan, hyper: dict, args: dict, rng: np.random.Generator) -> t
         out = jax.block_until_ready(program(sc[idx], kappa[idx], arrays, z_g[idx], z_m[idx]))
         return [np.asarray(o)[: min(DRAW_CHUNK, s - i)] for o in out]
 
-    parts = map_chains(lambda k: chunk(k * DRAW_CHUNK), -(-s // DRAW_CHUNK), THREADS)
+    parts = map_chains(lambda k: chunk(k * DRAW_CHUNK), -(-s // DRAW_CHUNK))
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
@@ -226,7 +222,6 @@ def _run_chains(plan: Plan, spec: FleetSpec, args: dict, seed: int, inference: I
         seed=seed,
         extend=spec.extend if inference is not None else 0,
         mixed=mixed if inference is not None else None,
-        threads=THREADS,
     )
 
 

@@ -188,14 +188,14 @@ def with_retries[T](
 
 
 def map_chains[T](one: Callable[[int], T], n: int, threads: int | None = None) -> list[T]:
-    """``[one(0), ..., one(n - 1)]`` on a thread pool of ``threads`` (default: every core), each result
-    blocked on in its thread; Ctrl-C raises at once, not waiting for the running chains."""
-    import os
-
+    """``[one(0), ..., one(n - 1)]`` on a thread pool of ``threads`` (default: one per core,
+    :func:`bayescal._parallel.workers`), each result blocked on in its thread; Ctrl-C raises at once, not
+    waiting for the running chains."""
     import jax
 
-    workers = max(1, min(n, threads or os.cpu_count() or 1))
-    pool = ThreadPoolExecutor(max_workers=workers)
+    from bayescal._parallel import workers
+
+    pool = ThreadPoolExecutor(max_workers=workers(n, threads))
     try:
         out = list(pool.map(lambda i: jax.block_until_ready(one(i)), range(n)))
     except BaseException:
@@ -265,7 +265,7 @@ def run_phases(
     seed: int,
     extend: int = 0,
     mixed: Callable[[np.ndarray], bool] | None = None,
-    threads: int = 2,
+    threads: int | None = None,
 ) -> Phased:
     """NUTS in phases (the module's docstring) from the chains' starts ``u0`` ``(chain, dim)``.
 

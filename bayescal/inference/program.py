@@ -28,7 +28,7 @@ from numpyro.distributions.transforms import biject_to
 from numpyro.infer.util import potential_energy, unconstrain_fn
 
 from bayescal._config import computes
-from bayescal._parallel import pairwise_map
+from bayescal._parallel import parallel_map
 from bayescal.inference.persist import TRACING, dtype_of, load_json, persisted, save_json, structure_key
 from bayescal.model.assemble import CalibrationModel
 
@@ -356,7 +356,7 @@ def _constrain(batched: Callable) -> Callable:
 def _in_blocks(batched: Callable) -> Callable:
     """``batched(z_batch, data, *rest)`` over blocks of :data:`BLOCK` rows (the last padded), the results joined.
 
-    Two blocks run at once (:func:`~bayescal._parallel.pairwise_map`): the 4000 draws of a seed-000
+    Two blocks run at once (:func:`~bayescal._parallel.parallel_map`): the 4000 draws of a seed-000
     fit's posterior with their log-likelihood took 0.10 s against 0.14 s one block after another on
     two cores, with the same numbers (each block is the same program on the same rows).
     """
@@ -371,7 +371,7 @@ def _in_blocks(batched: Callable) -> Callable:
     def run(z_batch, data, *rest):
         z_batch = np.asarray(z_batch)
         firsts = range(0, z_batch.shape[0], BLOCK)
-        parts = pairwise_map(lambda first: one(z_batch, first, data, rest), firsts)
+        parts = parallel_map(lambda first: one(z_batch, first, data, rest), firsts)
         if len(parts) == 1:
             return parts[0]
         return jax.tree.map(lambda *a: np.concatenate(a), *parts)

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import functools
 import json
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -35,6 +34,7 @@ import pandas as pd
 from scipy import stats as sstats
 
 from bayescal._config import computes
+from bayescal._parallel import workers
 from bayescal.errors import TableError
 from bayescal.model.components.dark import Dark
 from bayescal.model.components.noise import Noise
@@ -107,7 +107,7 @@ class MapSet:
             if self._exposures:  # one exposure kept: two float32 maps
                 self._exposures.pop(next(iter(self._exposures)))
             f = np.float32
-            dark = self.offset + self.dark * f(t)
+            dark = Dark.level(self.offset, self.dark, f(t))
             var = self.var_offset + self.var_dark * f(t * t)
             var += self.cov_offset_dark * f(2 * t)
             self._exposures[key] = (dark.astype(f), var.astype(f))
@@ -352,9 +352,9 @@ def _apply_plane(
             out[key][start:stop] = np.asarray(v)[: stop - start]
 
     starts = range(0, n, BLOCK)
-    workers = min(os.cpu_count() or 1, 2)
-    if workers > 1 and len(starts) > 1:  # XLA releases the GIL: two blocks in flight keep both cores busy
-        with ThreadPoolExecutor(max_workers=workers) as pool:
+    threads = workers(len(starts))
+    if threads > 1:  # XLA releases the GIL: a block in flight per core keeps them busy
+        with ThreadPoolExecutor(max_workers=threads) as pool:
             list(pool.map(work, starts))
     else:
         for start in starts:
@@ -369,7 +369,7 @@ def _radiance_lut(m: MapSet, cal, channel, setting, exposure_s, grid):
 
     cal.channel_index(channel)  # a clear error for a channel the calibration does not hold
     setting = setting or Setting(exposure_s, cal.reference.gain, cal.reference.tdi_stages)
-    dark = m.mean_offset + m.mean_dark * exposure_s
+    dark = Dark.level(m.mean_offset, m.mean_dark, exposure_s)
     top = float(cal.saturation_dn) - dark
     xs = np.linspace(0.0, top, grid)
     res = invert(cal, dark + xs, channel, setting, noise=False)

@@ -94,7 +94,9 @@ def _scheduler() -> dict:
         return {}
     except (ImportError, ValueError):
         pass
-    return {"scheduler": "threads", "num_workers": os.cpu_count()}
+    from bayescal._parallel import cores
+
+    return {"scheduler": "threads", "num_workers": cores()}
 
 
 def _layout(ds, store: str) -> None:

@@ -36,13 +36,13 @@ the gather.
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
+from bayescal._parallel import workers
 from bayescal.errors import TableError
 from bayescal.model import equation
 from bayescal.model.components import Response
@@ -273,8 +273,8 @@ def value_summaries(cal, channel, values, setting, n_avg, prnu, level, noise, se
         block[4] = np.where(clipped, q1_lo, q_med) > max_stim * (1 + 1e-9)
 
     starts = range(0, values.size, _CHUNK)
-    if len(starts) > 1 and (os.cpu_count() or 1) > 1:  # numpy releases the GIL: blocks run on every core
-        with ThreadPoolExecutor(max_workers=os.cpu_count()) as pool:
+    if workers(len(starts)) > 1:  # numpy releases the GIL: blocks run on every core
+        with ThreadPoolExecutor(max_workers=workers(len(starts))) as pool:
             list(pool.map(block_of, starts))
     else:
         for start in starts:

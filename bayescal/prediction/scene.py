@@ -17,7 +17,6 @@ gained (measured) is reported.
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -26,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from bayescal._parallel import cores
 from bayescal.errors import SpecError
 from bayescal.model.setting import Setting
 from bayescal.posterior.calibration import Calibration
@@ -215,7 +215,7 @@ def _quantile_table(cal: Calibration, channel: str, dn: np.ndarray, setting, n_a
         out[4, start : start + v.size] = draws.std(axis=1)
         out[:4, start : start + v.size] = sorted_quantiles(draws, _PROBS)
 
-    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:  # numpy releases the GIL
+    with ThreadPoolExecutor(max_workers=cores()) as pool:  # numpy releases the GIL
         list(pool.map(block, range(0, dn.size, _BLOCK)))
     return out
 

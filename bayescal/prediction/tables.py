@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bayescal._parallel import workers
 from bayescal.model.setting import Setting
 from bayescal.posterior.calibration import Calibration
 
@@ -212,9 +213,9 @@ def gather(
         return np.bincount(index.ravel(), minlength=len(names) * size)
 
     def run() -> np.ndarray:
-        workers = min(os.cpu_count() or 1, len(starts))
-        if workers > 1:  # numpy's take and bincount release the GIL: row blocks run on every core
-            with ThreadPoolExecutor(max_workers=workers) as pool:
+        threads = workers(len(starts))
+        if threads > 1:  # numpy's take and bincount release the GIL: row blocks run on every core
+            with ThreadPoolExecutor(max_workers=threads) as pool:
                 return np.sum(list(pool.map(block, starts)), axis=0)
         return np.sum([block(s) for s in starts], axis=0)
 

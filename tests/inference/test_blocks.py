@@ -6,10 +6,11 @@ from typing import NamedTuple
 import numpy as np
 import numpyro
 import numpyro.distributions as dist
+import pytest
 from scipy import stats
 
 import bayescal as bc
-from bayescal._parallel import pairwise_map
+from bayescal._parallel import parallel_map
 from bayescal.inference.program import BLOCK, program_of
 
 
@@ -25,15 +26,15 @@ def line(data: Line) -> None:
     numpyro.sample("obs", dist.Normal(a + b * data.x, s), obs=data.y)
 
 
-def test_pairwise_map_keeps_order_and_runs_serially_inside_a_thread():
-    assert pairwise_map(lambda v: v * v, range(7)) == [v * v for v in range(7)]
+def test_parallel_map_keeps_order_and_runs_serially_inside_a_thread():
+    assert parallel_map(lambda v: v * v, range(7)) == [v * v for v in range(7)]
     seen: list[str] = []
 
     def record(v):
         seen.append(threading.current_thread().name)
         return v
 
-    worker = threading.Thread(target=lambda: pairwise_map(record, range(5)), name="outer")
+    worker = threading.Thread(target=lambda: parallel_map(record, range(5)), name="outer")
     worker.start()
     worker.join()
     assert seen == ["outer"] * 5  # inside a thread: no threads of its own
@@ -56,3 +57,24 @@ def test_blocks_at_once_give_each_draws_own_numbers():
     a, b, s = (np.asarray(both[k])[:, None] for k in ("a", "b", "s"))
     expected = stats.norm.logpdf(data.y, a + b * x, s)
     np.testing.assert_allclose(np.asarray(both["__loglik__"]), expected, rtol=1e-10)
+
+
+def test_one_thread_policy_sizes_every_pool(monkeypatch):
+    """Pools size themselves from the cores the process may use, or from ``$BAYESCAL_THREADS``; a bad value
+    is an error that names the variable."""
+    from bayescal._parallel import cores, workers
+    from bayescal.errors import SpecError
+
+    monkeypatch.setenv("BAYESCAL_THREADS", "3")
+    assert cores() == 3 and workers(10) == 3 and workers(2) == 2 and workers(10, at_most=1) == 1
+    assert workers(0) == 1
+    monkeypatch.setenv("BAYESCAL_THREADS", "1")
+    assert parallel_map(lambda v: v + 1, range(4)) == [1, 2, 3, 4]  # one core: the loop
+    for bad in ("0", "two", "-1"):
+        monkeypatch.setenv("BAYESCAL_THREADS", bad)
+        with pytest.raises(SpecError, match="BAYESCAL_THREADS"):
+            cores()
+    monkeypatch.delenv("BAYESCAL_THREADS")
+    import os
+
+    assert cores() == len(os.sched_getaffinity(0))

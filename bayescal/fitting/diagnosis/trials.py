@@ -5,6 +5,7 @@ from __future__ import annotations
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 
+from bayescal._parallel import workers
 from bayescal.errors import FitFailedWarning
 from bayescal.fitting.fit import fit
 from bayescal.fitting.modegain import paired_gain
@@ -13,8 +14,6 @@ from bayescal.model.spec import ModelSpec
 
 #: a switch is adopted when it raises elpd_loo by more than this many standard errors of the difference
 EVIDENCE_SE = 2.0
-#: candidate fits run at once (the machine's two cores; a fit's own blocks then run one after the other)
-CANDIDATE_THREADS = 2
 
 
 def laplace_proxy(spec: ModelSpec) -> ModelSpec:
@@ -38,14 +37,15 @@ def quiet_fit(table, spec, backend, seed) -> Fit:
 
 
 def fit_all(table, specs: list[ModelSpec], seed: int) -> list[Fit]:
-    """Laplace fits of ``specs``, two at a time in threads (each a compiled program that runs outside the
-    interpreter's lock: on two cores the candidates of one step take about half the time), in order."""
-    if len(specs) < 2:
+    """Laplace fits of ``specs``, one per core at a time in threads (each a compiled program that runs outside
+    the interpreter's lock: on two cores the candidates of one step take about half the time), in order; a
+    fit's own blocks then run one after the other (:func:`bayescal._parallel.parallel_map`)."""
+    if workers(len(specs)) < 2:
         return [quiet_fit(table, spec, "laplace", seed) for spec in specs]
     with warnings.catch_warnings():  # here, once: the warning filters are the process's, not a thread's
         warnings.simplefilter("ignore", FitFailedWarning)
         warnings.simplefilter("ignore", UserWarning)
-        with ThreadPoolExecutor(CANDIDATE_THREADS) as pool:
+        with ThreadPoolExecutor(workers(len(specs))) as pool:
             return list(pool.map(lambda spec: fit(table, spec, "laplace", seed=seed), specs))
 
 
