@@ -23,6 +23,7 @@ import pandas as pd
 
 from bayescal._config import computes
 from bayescal.campaign import checks as model_checks
+from bayescal.campaign.discriminate import Discrimination, telling_apart
 from bayescal.campaign.grid import Grid
 from bayescal.campaign.information import Linearisation, Targets, linearise
 from bayescal.campaign.search import Costs, cost_of, greedy, pruned, relaxed, trimmed
@@ -90,6 +91,9 @@ class CampaignDesign:
     #: what the design costs in rows (setting changes included), and the budget it was made for
     cost_rows: float = 0.0
     budget_rows: float | None = None
+    #: ``after`` a fit with a MODEL DOUBT: the groups that tell its two structures apart
+    #: (:mod:`bayescal.campaign.discriminate`)
+    telling_apart: Discrimination | None = None
 
     @property
     def over_budget(self) -> bool:
@@ -173,6 +177,8 @@ class CampaignDesign:
         for c in self.checks:
             if not c.supported:
                 lines.append(f"GIVES UP the {c.name} check: it needs {c.needs}.")
+        if self.telling_apart is not None:
+            lines.append(self.telling_apart.summary())
         return "\n".join(lines)
 
     def save(self, out_dir: str | os.PathLike) -> Path:
@@ -188,6 +194,9 @@ class CampaignDesign:
             stage("design.toml").write_text(design_toml(self.design, spec=relative))
             stage("groups.csv").write_text(self.groups().to_csv(index=False, float_format="%.8g"))
             stage("widths.csv").write_text(self.widths.to_csv(index=False, float_format="%.6g"))
+            if self.telling_apart is not None:
+                table = self.telling_apart.table
+                stage("telling_apart.csv").write_text(table.to_csv(index=False, float_format="%.6g"))
         return out
 
 
@@ -299,6 +308,7 @@ def design(
         if block_rows is None and budget_rows is not None:
             block_rows = budget_rows
         state = _measured(grid, after, say)
+    telling = _telling_apart(grid, after, seed, say) if after is not None else None
     points = _points(state, draws, seed)
     say(f"linearising at {len(points)} point(s)")
     model, program, groups = state.model, state.program, state.groups
@@ -370,6 +380,7 @@ def design(
         max_rows=max_rows if budget is None and int(counts.sum()) * n_ch >= max_rows else None,
         cost_rows=cost_of(counts, Costs(n_ch, setting_cost), [g.setting for g in grid.groups]),
         budget_rows=budget,
+        telling_apart=telling,
     )
 
 
@@ -463,6 +474,23 @@ def _measured(grid: Grid, after, say: Callable[[str], None]) -> _State:
     # mode under-states it as maximum likelihood does against REML)
     centre = laplace_z(model, program, mode, 0, {})[0].mean(axis=0)
     return _State(spec, model, program, mode, groups, base, measured, centre)
+
+
+def _telling_apart(grid: Grid, after, seed: int, say: Callable[[str], None]) -> Discrimination | None:
+    """For a fit that ended with a MODEL DOUBT: the grid's groups that tell its two structures apart."""
+    from bayescal.io.fit_folder import FitFolder
+    from bayescal.posterior.calibration import Calibration
+
+    folder = after if isinstance(after, FitFolder) else FitFolder.at(after, "`bayescal design --after`")
+    doubt = (folder.summary.get("diagnostics") or {}).get("structure")
+    if not doubt:
+        return None
+    import tomllib
+
+    spec = ModelSpec.from_dict(tomllib.loads(folder.posterior.attrs["spec_toml"]), source=str(folder.posterior_path))
+    frame = folder.measurements.rename(columns={spec.stimulus: "stimulus"})
+    every = _placeholder_rows(list(grid.groups), grid, Calibration.load(folder), frame)
+    return telling_apart(grid, spec, frame, doubt, every, seed, say)
 
 
 def _first_of_group(groups: np.ndarray, channels: np.ndarray) -> np.ndarray:

@@ -229,9 +229,7 @@ def cmd_plan(args) -> int:
     for why in sorted(set("; ".join(shown.loc[shown.extrapolated, "why"]).split("; ")) - {""}):
         print(f"EXTRAPOLATION: {why}", file=sys.stderr)
     for r in plan.dropped.itertuples():
-        print(
-            f"DROPPED: exposure {r.exposure_s:g} s, gain {r.gain:g}, TDI {r.tdi_stages:g}: {r.why}", file=sys.stderr
-        )
+        print(f"DROPPED: exposure {r.exposure_s:g} s, gain {r.gain:g}, TDI {r.tdi_stages:g}: {r.why}", file=sys.stderr)
     if len(plan.table) > args.top:
         print(f"(showing the best {args.top} of {len(plan.table)} settings ranked; --top shows more)", file=sys.stderr)
     emit(

@@ -122,6 +122,7 @@ def did_you_mean(path: str | os.PathLike) -> str:
         beside = [p.name for p in path.parent.iterdir()]
     except OSError:
         beside = []
+
     def rank(c: str) -> tuple:  # the closest; among equals, what the name begins, then the first by name
         return -difflib.SequenceMatcher(None, path.name, c).ratio(), not c.startswith(path.name), c
 

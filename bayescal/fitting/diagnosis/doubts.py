@@ -80,6 +80,8 @@ def structure_doubt(base: Fit, found: Diagnosis) -> tuple[str, dict] | None:
         moved = _moved(base, trial[1])
         if moved and (best is None or max(moved.values()) > best[0]):
             info = {"candidate": str(r.candidate), "moved_sd": moved, "carried": True}
+            # the structure not reported (the spec's: the candidate nests it), for `design --after`
+            info |= {"other": "the spec without it", "other_spec": base.model.spec.to_toml()}
             best = (max(moved.values()), str(r.candidate), info)
     return None if best is None else (best[1], best[2])
 
@@ -112,6 +114,7 @@ def rival_doubt(final: Fit, found: Diagnosis) -> dict | None:
         moved = _moved(final, result)
         if moved and (best is None or max(moved.values()) > best[0]):
             info = {"candidate": name, "moved_sd": moved, "elpd_diff": round(diff, 1), "dse": round(se, 1)}
+            info["other_spec"] = result.model.spec.to_toml()  # the rival's structure, for `design --after`
             if name == found.preferred.get("over"):  # the flexible shape reported draws this one too
                 info |= {"carried": True, "reported": found.preferred["candidate"]}
             else:
