@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
@@ -178,6 +179,7 @@ def fit_many(
     iterations: Callable[[int], None] | None = None,
     stage: Callable[[str], None] | None = None,
     vectorize: bool | None = None,
+    starts: Sequence[np.ndarray | None] | None = None,
 ) -> FitBatch:
     """Fit ``spec`` to every table with one compiled program per stage.
 
@@ -199,6 +201,10 @@ def fit_many(
         ``stage(message)`` as each stage starts.
     vectorize : bool, optional
         Run the MAP searches as one vmapped program (see :func:`fit_models`).
+    starts : sequence of arrays, optional
+        Where each dataset's mode search starts (flat unconstrained vectors; None: the data-driven start,
+        :func:`~bayescal.inference.start.initial_point`): a mode already found (the diagnosis's screen) is
+        then only polished.
 
     Raises
     ------
@@ -235,6 +241,7 @@ def fit_many(
         stage=stage,
         vectorize=vectorize,
         prepare_s=time.perf_counter() - t0,
+        starts=starts,
     )
 
 
@@ -249,6 +256,7 @@ def fit_models(
     stage: Callable[[str], None] | None = None,
     vectorize: bool | None = None,
     prepare_s: float = 0.0,
+    starts: Sequence[np.ndarray | None] | None = None,
 ) -> FitBatch:
     """:func:`fit_many` on assembled models of one structure (datasets built without tables,
     e.g. simulated from the prior by :mod:`bayescal.validation.sbc`; their :meth:`FitBatch.fit` would
@@ -271,11 +279,12 @@ def fit_models(
     program = program_for(models[0])
     timings = {"prepare": prepare_s}
     t = time.perf_counter()
-    starts = [initial_point(m, program) for m in models]
+    given = list(starts) if starts is not None else [None] * len(models)
+    begin = [initial_point(m, program) if s is None else jnp.asarray(s) for m, s in zip(models, given, strict=True)]
     if vectorize:
-        modes = laplace_many(program, [m.data for m in models], starts)
+        modes = laplace_many(program, [m.data for m in models], begin)
     else:
-        modes = [laplace(program, m.data, s) for m, s in zip(models, starts, strict=True)]
+        modes = [laplace(program, m.data, s) for m, s in zip(models, begin, strict=True)]
     timings["map"] = time.perf_counter() - t
     t = time.perf_counter()
     samples = backends.get(backend).sample_many(

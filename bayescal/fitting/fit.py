@@ -44,6 +44,7 @@ def fit(
     progress=None,
     strict: bool = False,
     stage=None,
+    start=None,
 ) -> Fit:
     """Fit ``spec`` to ``table``: the posterior of every calibration quantity, judged by its diagnostics,
     beside the least-squares baseline.
@@ -65,6 +66,9 @@ def fit(
         Raise :class:`~bayescal.errors.FitFailedError` instead of warning when diagnostics fail.
     stage : callable, optional
         ``stage(message)`` is called as each stage starts (model, mode, sampling, checks).
+    start : array, optional
+        Where the mode search starts (a flat unconstrained vector of this structure; default: the
+        data-driven start).
 
     Returns
     -------
@@ -88,7 +92,7 @@ def fit(
     if backend not in BACKENDS:
         raise SpecError(f"unknown backend '{backend}'; expected one of {', '.join(BACKENDS)}")
     if backend != BASELINE:
-        batch = fit_many([table], spec, backend, seeds=[seed], iterations=progress, stage=stage)
+        batch = fit_many([table], spec, backend, seeds=[seed], iterations=progress, stage=stage, starts=[start])
         return batch.fit(0, strict=strict)
     t0 = time.perf_counter()
     model = build_model(table, spec)

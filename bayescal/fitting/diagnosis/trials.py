@@ -28,25 +28,28 @@ def laplace_proxy(spec: ModelSpec) -> ModelSpec:
     return spec.replace(response={"pooled": False, "gain_prior": gain_prior}, dark={"pooled": False})
 
 
-def quiet_fit(table, spec, backend, seed) -> Fit:
+def quiet_fit(table, spec, backend, seed, start=None) -> Fit:
     """A fit whose failures and warnings are the search's to judge, not the user's to read."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FitFailedWarning)
         warnings.simplefilter("ignore", UserWarning)
-        return fit(table, spec, backend, seed=seed)
+        return fit(table, spec, backend, seed=seed, start=start)
 
 
-def fit_all(table, specs: list[ModelSpec], seed: int) -> list[Fit]:
+def fit_all(table, specs: list[ModelSpec], seed: int, starts: list | None = None) -> list[Fit]:
     """Laplace fits of ``specs``, one per core at a time in threads (each a compiled program that runs outside
     the interpreter's lock: on two cores the candidates of one step take about half the time), in order; a
-    fit's own blocks then run one after the other (:func:`bayescal._parallel.parallel_map`)."""
+    fit's own blocks then run one after the other (:func:`bayescal._parallel.parallel_map`).  ``starts``: where
+    each mode search starts (a mode the screen found: then only polished)."""
+    starts = list(starts) if starts is not None else [None] * len(specs)
     if workers(len(specs)) < 2:
-        return [quiet_fit(table, spec, "laplace", seed) for spec in specs]
+        return [quiet_fit(table, spec, "laplace", seed, start) for spec, start in zip(specs, starts, strict=True)]
     with warnings.catch_warnings():  # here, once: the warning filters are the process's, not a thread's
         warnings.simplefilter("ignore", FitFailedWarning)
         warnings.simplefilter("ignore", UserWarning)
         with ThreadPoolExecutor(workers(len(specs))) as pool:
-            return list(pool.map(lambda spec: fit(table, spec, "laplace", seed=seed), specs))
+            pairs = list(zip(specs, starts, strict=True))
+            return list(pool.map(lambda pair: fit(table, pair[0], "laplace", seed=seed, start=pair[1]), pairs))
 
 
 def psis_loo(result: Fit):
