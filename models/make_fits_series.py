@@ -2,8 +2,10 @@
 
 A 24 x 24 pixel region of a CCD like the EMVA reference set's (K = 0.28 DN/e-, QE 45 %, read noise
 10 e-, dark current 30 e-/s, 1 % PRNU, 2 DN DSNU, offset 100 DN): a pair of flats at each of 24
-illumination steps from dark to saturation at 20 ms, and pairs of darks at 20, 100 and 200 ms (the dark
-current is a slope in time).  Each frame is a FITS file (``EXPTIME`` in its header), listed in
+illumination steps from dark to saturation at 20 ms, pairs of darks at 20, 100 and 200 ms (the dark
+current is a slope in time), and a stack of 16 flats at half saturation with 16 darks beside it (the
+spatial non-uniformity: DSNU, PRNU and their histograms and spectrograms on the datasheet).  Each frame
+is a FITS file (``EXPTIME`` in its header), listed in
 ``EMVA1288_Data.txt`` as the standard's descriptor lists images; ``bayescal characterize`` reads the
 descriptor::
 
@@ -32,6 +34,7 @@ OFFSET_DN = 100.0
 EXPOSURE_S = 0.02
 DARK_EXPOSURES_S = (0.02, 0.1, 0.2)
 STEPS = 24
+STACK = 16  # frames of each stack (the standard asks for more; enough for the datasheet's plots)
 FULL_WELL_PHOTONS = 36000.0  # past saturation of the 12-bit ADC at this K and QE
 
 
@@ -55,19 +58,22 @@ def main(seed: int = 1288) -> None:
         f"n {BITS} {SIDE} {SIDE}",
     ]
 
-    def pair(tag: str, name: str, photons: float, exposure_s: float) -> None:
+    def group(tag: str, name: str, photons: float, exposure_s: float, suffixes) -> None:
         ns = int(round(exposure_s * 1e9))
         lines.append(f"b {ns} {photons:.1f}" if tag == "b" else f"d {ns}")
-        for k in "ab":
+        for k in suffixes:
             header = fits.Header({"EXPTIME": exposure_s, "CCD-TEMP": 20.0})
             data = _frame(rng, photons, exposure_s, gain_map, offset_map)
             fits.PrimaryHDU(data=data, header=header).writeto(HERE / f"{name}{k}.fits", overwrite=True)
             lines.append(f"i {name}{k}.fits")
 
     for i, photons in enumerate(np.linspace(FULL_WELL_PHOTONS / STEPS, FULL_WELL_PHOTONS, STEPS)):
-        pair("b", f"flat{i:02d}", float(photons), EXPOSURE_S)
+        group("b", f"flat{i:02d}", float(photons), EXPOSURE_S, "ab")
     for exposure_s in DARK_EXPOSURES_S:
-        pair("d", f"dark{int(exposure_s * 1000):03d}ms", 0.0, exposure_s)
+        group("d", f"dark{int(exposure_s * 1000):03d}ms", 0.0, exposure_s, "ab")
+    frames = [f"_{k:02d}" for k in range(STACK)]
+    group("b", "stackflat", FULL_WELL_PHOTONS / 2, EXPOSURE_S, frames)
+    group("d", "stackdark", 0.0, EXPOSURE_S, frames)
     (HERE / "EMVA1288_Data.txt").write_text("\n".join(lines) + "\n")
 
 

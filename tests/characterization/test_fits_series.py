@@ -14,8 +14,8 @@ from bayescal.io.resources import example_path
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("astropy") is None, reason="needs bayescal[fits]")
 
-#: the simulated sensor (models/make_fits_series.py)
-TRUE = {"K": 0.28, "QE": 45.0, "dark_current_mean": 30.0}
+#: the simulated sensor (models/make_fits_series.py): DSNU 2 DN at K = 0.28 DN/e-, PRNU 1 %
+TRUE = {"K": 0.28, "QE": 45.0, "dark_current_mean": 30.0, "DSNU1288": 2.0 / 0.28, "PRNU1288": 1.0}
 
 
 def test_the_fits_series_characterises_and_covers_its_sensor():
@@ -25,15 +25,18 @@ def test_the_fits_series_characterises_and_covers_its_sensor():
         assert q.loc[name, "q2.5"] <= true <= q.loc[name, "q97.5"], (name, q.loc[name].to_dict())
     assert res.dark is not None and len(res.dark) == 3  # darks at 20, 100 and 200 ms: a dark current
     assert not res.problems
+    assert res.operating["stack_images"] == 16 and res.operating["image_shape"] == [24, 24]
 
 
 def test_a_copied_series_characterises_from_its_folder(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert main(["examples", "--copy", "ccd_fits"]) == 0
     assert (tmp_path / "ccd_fits" / "EMVA1288_Data.txt").is_file()
-    assert len(list((tmp_path / "ccd_fits").glob("*.fits"))) == 54
+    assert len(list((tmp_path / "ccd_fits").glob("*.fits"))) == 54 + 2 * 16  # pairs, and the two stacks
     assert main(["characterize", "ccd_fits", "--out", "ccd"]) == 0
     result = json.loads((tmp_path / "ccd" / "characterization.json").read_text())
     k = next(r for r in result["quantities"] if r["quantity"] == "K")
     assert np.isclose(k["standard"], 0.28, rtol=0.1)
-    assert (tmp_path / "ccd" / "datasheet.html").is_file()
+    html = (tmp_path / "ccd" / "datasheet.html").read_text()
+    for plot in ("Dark signal", "Non-uniformity histograms", "Non-uniformity spectrograms"):  # every plot
+        assert f'<img alt="{plot}"' in html, plot
