@@ -543,6 +543,10 @@ def characterize(steps: Steps, n_draws: int = 4000, seed: int = 0) -> Characteri
                 draws[name] = np.full(n_draws, np.nan)
                 notes[name] = why
         point = point | {name: np.nan for name in NEEDS_K if name in point} | _general(c, r, point)
+        general = _general_draws(c, r, draws["u_p_sat"], n_pix, n_draws, rng)  # no K needed: with posteriors
+        for name, values in general.items():
+            draws[name] = values
+            notes.pop(name, None)
     determined = _dark_exposures(steps) >= 2 and ptc["linear"]
     if determined:
         lo, hi = np.quantile(draws["dark_current_difference"], [0.025, 0.975])
@@ -629,17 +633,42 @@ def _general(c: pd.DataFrame, r: dict, point: dict) -> dict:
     which it reaches 1 (the absolute sensitivity threshold, interpolated in log-log); the dynamic range."""
     sat = r["index_u_ysat"]
     signal = (c["mu_y"] - c["mu_dark"]).to_numpy()[: sat + 1]
-    photons = c["photons"].to_numpy()[: sat + 1]
-    snr = signal / np.sqrt(np.maximum(c["s2_y"].to_numpy()[: sat + 1], 1e-300))
-    out = {"SNR_max": float(np.max(snr))}
-    above = np.flatnonzero((snr >= 1.0) & (photons > 0))
-    if above.size and above[0] > 0 and snr[above[0] - 1] > 0 and photons[above[0] - 1] > 0:
-        i = above[0]
-        x = np.log([photons[i - 1], photons[i]])
-        y = np.log([snr[i - 1], snr[i]])
-        out["u_p_min"] = float(np.exp(x[0] + (0.0 - y[0]) * (x[1] - x[0]) / (y[1] - y[0])))
-        out["DR"] = float(point["u_p_sat"] / out["u_p_min"])
-    return out
+    out = _snr_quantities(signal, c["s2_y"].to_numpy()[: sat + 1], c["photons"].to_numpy()[: sat + 1], point["u_p_sat"])
+    return {k: float(v) for k, v in out.items() if np.isfinite(v)}
+
+
+def _general_draws(c: pd.DataFrame, r: dict, u_p_sat: np.ndarray, n_pix: float, n: int, rng) -> dict:
+    """Posterior draws of Release 4 General's quantities (:func:`_general`): each step's mean signal and
+    temporal variance drawn from their sampling distributions over the ``n_pix`` pixels of a pair (the mean
+    Normal with the variance over the pixels, the variance scaled chi-square with ``n_pix - 1`` degrees of
+    freedom: the standard's estimators' own noise, flat priors), and the saturation point's draws."""
+    sat = r["index_u_ysat"]
+    mean = (c["mu_y"] - c["mu_dark"]).to_numpy()[: sat + 1]
+    s2 = np.maximum(c["s2_y"].to_numpy()[: sat + 1], 1e-300)
+    s2_dark = c["s2_dark"].to_numpy()[: sat + 1]
+    dof = max(float(n_pix) - 1.0, 1.0)
+    signal = mean + np.sqrt((s2 + s2_dark) / (2.0 * float(n_pix))) * rng.standard_normal((n, mean.size))
+    var = s2 * rng.chisquare(dof, (n, mean.size)) / dof
+    return _snr_quantities(signal, var, c["photons"].to_numpy()[: sat + 1], u_p_sat)
+
+
+def _snr_quantities(signal, var, photons: np.ndarray, u_p_sat) -> dict:
+    """``SNR_max``, ``u_p_min`` and ``DR`` from the measured SNR curve ``signal / sqrt(var)`` over the steps up
+    to saturation (the last axis; leading axes are draws): the threshold is where the SNR first reaches 1,
+    interpolated in log-log between the steps around it (NaN where no step brackets it)."""
+    snr = np.asarray(signal) / np.sqrt(np.maximum(var, 1e-300))
+    photons = np.asarray(photons, dtype=float)
+    reached = (snr >= 1.0) & (photons > 0)
+    first = np.argmax(reached, axis=-1)
+    below = np.take_along_axis(snr, np.maximum(first - 1, 0)[..., None], -1)[..., 0]
+    at = np.take_along_axis(snr, first[..., None], -1)[..., 0]
+    p0, p1 = photons[np.maximum(first - 1, 0)], photons[first]
+    valid = reached.any(axis=-1) & (first > 0) & (below > 0) & (p0 > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x0, x1 = np.log(np.where(valid, p0, 1.0)), np.log(np.where(valid, p1, 2.0))
+        y0, y1 = np.log(np.where(valid, below, 0.5)), np.log(np.where(valid, at, 1.0))
+        u_p_min = np.where(valid, np.exp(x0 - y0 * (x1 - x0) / (y1 - y0)), np.nan)
+    return {"SNR_max": np.max(snr, axis=-1), "u_p_min": u_p_min, "DR": np.asarray(u_p_sat) / u_p_min}
 
 
 def _layout_notes(steps: Steps) -> tuple[str, ...]:

@@ -93,6 +93,11 @@ def test_a_concave_photon_transfer_makes_k_not_determinable(tmp_path):
         assert np.isnan(t.loc[q, "median"]) and "Release 4 Linear does not apply" in t.loc[q, "note"]
     assert np.isfinite(t.loc["R", "median"]) and np.isfinite(t.loc["LE_min", "median"])
     assert 1.0 < t.loc["DR", "standard"] < 1e5 and np.isfinite(t.loc["u_p_min", "standard"])
+    # the General module's quantities carry posteriors (the steps' means and variances drawn from their
+    # sampling distributions), around the standard's values, not point values alone
+    for q in ("SNR_max", "u_p_min", "DR"):
+        lo, hi = t.loc[q, "q2.5"], t.loc[q, "q97.5"]
+        assert lo < t.loc[q, "standard"] < hi and (hi - lo) / t.loc[q, "median"] < 0.5, (q, t.loc[q])
 
 
 def test_the_linear_module_holds_on_linear_sensors_and_concave_ones_are_never_tight_and_wrong(tmp_path):
