@@ -81,6 +81,13 @@ _LAZY = {
     "Characterization": "bayescal.characterization.emva1288",
     "characterize": "bayescal.characterization.emva1288",
     "standard_method": "bayescal.characterization.emva1288",
+    "write_datasheet": "bayescal.characterization.datasheet",
+    "write_curves": "bayescal.characterization.datasheet",
+    "write_report": "bayescal.report.html",
+    "maps_report": "bayescal.maps.report",
+    "FleetDesign": "bayescal.validation.fleet",
+    "simulate_fleet": "bayescal.validation.fleet",
+    "fleet_from_frame": "bayescal.fleet.units",
     "Plan": "bayescal.prediction.plan",
     "default_window": "bayescal.prediction.plan",
     "plan_exposure": "bayescal.prediction.plan",
@@ -143,6 +150,7 @@ sys.modules[__name__].__class__ = _Package
 
 if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from bayescal.campaign.design import CampaignDesign, design
+    from bayescal.characterization.datasheet import write_curves, write_datasheet
     from bayescal.characterization.emva1288 import Characterization, characterize, standard_method
     from bayescal.characterization.nonlinearity import compare_nonlinearity, patent_baseline, simulate_curves
     from bayescal.fitting.batch import FitBatch, fit_many
@@ -151,7 +159,7 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from bayescal.fitting.result import Fit
     from bayescal.fleet.export import fleet_calibration
     from bayescal.fleet.posterior import FleetFit, compare_pooling, fit_fleet
-    from bayescal.fleet.units import load_fleet_table
+    from bayescal.fleet.units import fleet_from_frame, load_fleet_table
     from bayescal.inference.diagnostics import Diagnostics
     from bayescal.inference.lsq import LinearFit, lsq_baseline, lstsq, polyfit
     from bayescal.io.design import Design, Truth, load_design
@@ -159,6 +167,7 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from bayescal.io.table import MeasurementTable, load_table
     from bayescal.maps.apply import MapSet, apply_maps
     from bayescal.maps.build import build_maps
+    from bayescal.maps.report import maps_report
     from bayescal.maps.stacks import load_stacks, write_emva_stacks
     from bayescal.maps.store import make_maps, read_maps, write_maps
     from bayescal.model.assemble import CalibrationModel, build_model
@@ -171,5 +180,7 @@ if TYPE_CHECKING:  # pragma: no cover - static analysers see the eager imports
     from bayescal.prediction.plan import Plan, default_window, plan_exposure
     from bayescal.prediction.readings import predict
     from bayescal.prediction.scene import SceneChoice, choose_for_scene
+    from bayescal.report.html import write_report
     from bayescal.validation.design import DesignCheck, check_design
+    from bayescal.validation.fleet import FleetDesign, simulate_fleet
     from bayescal.validation.sbc import SBCResult, run_sbc

@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 GROUPS = {
     "Specs, designs and tables": ("bayescal.model.spec", "bayescal.io", "bayescal.model.simulate"),
     "Fitting": ("bayescal.fitting", "bayescal.model.assemble", "bayescal.inference"),
-    "A calibrated camera": ("bayescal.posterior", "bayescal.model.setting"),
+    "A calibrated camera": ("bayescal.posterior", "bayescal.model.setting", "bayescal.report"),
     "Predictions, inversion and planning": ("bayescal.prediction",),
     "Designing a campaign": ("bayescal.campaign", "bayescal.validation.design"),
     "EMVA 1288 and sensor characterisation": ("bayescal.characterization",),
