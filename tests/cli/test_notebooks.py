@@ -51,3 +51,16 @@ def test_pixel_maps_notebook_runs(monkeypatch):
     text = _text(_run("pixel_maps_emva1288.ipynb", monkeypatch))
     assert "PRNU standard, crop 0.2641 %" in text
     assert "PRNU1288_pixel, full frame (reference implementation) 0.2652 %" in text
+
+
+def test_every_notebook_uses_the_public_api_and_shows_a_plot():
+    """A notebook teaches what a user can write: ``import bayescal as bc`` and ``bc.NAME``, no module of the
+    package's insides; and each draws at least one figure (its committed outputs hold a PNG)."""
+    import re
+
+    for path in sorted(NOTEBOOKS.glob("*.ipynb")):
+        nb = nbformat.read(path, as_version=4)
+        code = "\n".join(cell.source for cell in nb.cells if cell.cell_type == "code")
+        assert not re.search(r"^\s*(from|import) bayescal\.", code, re.M), path.name
+        pngs = [o for c in nb.cells for o in c.get("outputs", []) if "image/png" in o.get("data", {})]
+        assert pngs, f"{path.name} shows no plot"
