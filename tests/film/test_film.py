@@ -54,6 +54,7 @@ def _film_coverage(spec, n: int) -> dict[str, int]:
     return hits
 
 
+@pytest.mark.slow  # a coverage rate over 40 bands (8 s)
 def test_coverage_on_simulated_film(spec):
     """40 bands (binomial sd 0.034 at 0.95): every coverage >= 0.85 (measured 0.975, 0.975, 1.0)."""
     hits = _film_coverage(spec, 40)

@@ -201,7 +201,9 @@ def test_a_candidate_the_data_cannot_tell_apart_that_moves_a_coefficient_is_repo
         step = pd.DataFrame([{"candidate": "c", "elpd_diff": diff, "dse": 2.0, "fit_ok": ok, "changes": {}}])
         return Diagnosis((), None, True, [step], trials={"c": (None, fake(shift))})
 
-    expected = {"candidate": "c", "moved_sd": {"G A0": 3.0}, "carried": True}
+    # the other structure (the spec the candidate nests) is named for `design --after`: these fakes carry no spec
+    expected = {"candidate": "c", "moved_sd": {"G A0": 3.0}, "carried": True, "other": "the spec without it"}
+    expected["other_spec"] = None
     assert structure_doubt(base, found(-1.0, True, moved)) == ("c", expected)
     assert structure_doubt(base, found(-5.0, True, moved)) is None  # the data prefer the spec by 2.5 se
     assert structure_doubt(base, found(0.5, False, moved)) is None  # the candidate's own fit fails
@@ -214,6 +216,7 @@ def test_a_candidate_the_data_cannot_tell_apart_that_moves_a_coefficient_is_repo
         "moved_sd": {"G A0": 3.0},
         "elpd_diff": -1.0,
         "dse": 2.0,
+        "other_spec": None,
         "carried": False,
     }
     assert rival_doubt(base, Diagnosis(("a",), None, True, [], rivals={"s": (0.5, 1.0, fake(moved / 2))})) is None

@@ -150,6 +150,7 @@ def test_drift_is_fitted_by_default_where_time_is_recorded(spec):
     assert bc.build_model(table, spec.replace(dark={"drift": False})).spec.dark.drift is False
 
 
+@pytest.mark.slow  # four datasets (10 s)
 def test_prnu_is_learned_from_partially_clipped_rows(spec):
     """A 3 % pixel spread stated as 1 % makes regions near full scale roll off earlier than modelled.
     With ``saturation.partial = "model"`` and ``learn_prnu`` the spread is learned from the partially

@@ -339,6 +339,7 @@ def test_conditional_draws_match_the_dense_posterior_mean(small_fleet):
     assert np.all(np.abs(ratio - 1.0) < 0.1)
 
 
+@pytest.mark.slow  # the fleet sampler's continuation (14 s); the fleet CLI test samples in the default run
 def test_chains_continue_until_the_ess_target(small_fleet):
     """Below the ESS target every chain continues from its adapted state, ``extend`` times at most,
     and the compiled conditional draws equal numpy's for the same normal variates."""
@@ -388,6 +389,7 @@ def test_the_laplace_start_is_the_mode_and_its_curvature(small_fleet):
     np.testing.assert_allclose(cov @ (0.5 * (fd + fd.T)), eye, atol=1e-4)
 
 
+@pytest.mark.slow  # a Monte Carlo comparison of two samplers (12 s)
 def test_without_a_usable_mode_the_chains_sample_the_same_posterior(small_fleet, monkeypatch):
     """The fallback (dispersed starts, unit mass matrix) and the Laplace start give the same
     posterior of the log scales: means within 4 Monte Carlo standard errors of their difference."""

@@ -73,6 +73,7 @@ def test_the_offset_is_recovered_and_an_unmeasured_exposure_predicted(spec):
     assert np.median(widths[True]) < 0.5 * np.median(widths[False]), {k: np.median(v) for k, v in widths.items()}
 
 
+@pytest.mark.slow  # a fit of bayescal's own simulator (11 s); the independent bench's shutter runs by default
 def test_simulated_with_a_true_offset(spec, seed000):
     """bayescal's own simulator carries the effect too (``[truth.effects.shutter]``): the fit finds it."""
     _, design = seed000

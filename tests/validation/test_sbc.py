@@ -38,6 +38,7 @@ def test_fit_many_laplace_equals_fit(seed000, tables):
     np.testing.assert_allclose(batch.physical(1)["gain"], full.posterior["posterior"]["gain"], rtol=1e-12)
 
 
+@pytest.mark.slow  # the accelerator's batched search (13 s); benchmarks/batched_map.py measures it
 def test_vectorised_map_matches_one_by_one(seed000, tables):
     """The vmapped MAP search (one program over the batch) lands on the same modes."""
     spec, _ = seed000
@@ -146,6 +147,7 @@ def test_sbc_detects_a_wrong_posterior(laplace_sbc):
     assert float(covered.to_numpy().mean()) < 0.75
 
 
+@pytest.mark.slow  # an SBC run (13 s); the SBC suite is slow
 def test_sbc_cli(tmp_path, capsys):
     """``bayescal sbc`` on a user's table and spec writes the rank table, report and histograms."""
     from bayescal.cli import main

@@ -81,7 +81,7 @@ def structure_doubt(base: Fit, found: Diagnosis) -> tuple[str, dict] | None:
         if moved and (best is None or max(moved.values()) > best[0]):
             info = {"candidate": str(r.candidate), "moved_sd": moved, "carried": True}
             # the structure not reported (the spec's: the candidate nests it), for `design --after`
-            info |= {"other": "the spec without it", "other_spec": base.model.spec.to_toml()}
+            info |= {"other": "the spec without it", "other_spec": spec_toml(base)}
             best = (max(moved.values()), str(r.candidate), info)
     return None if best is None else (best[1], best[2])
 
@@ -114,10 +114,18 @@ def rival_doubt(final: Fit, found: Diagnosis) -> dict | None:
         moved = _moved(final, result)
         if moved and (best is None or max(moved.values()) > best[0]):
             info = {"candidate": name, "moved_sd": moved, "elpd_diff": round(diff, 1), "dse": round(se, 1)}
-            info["other_spec"] = result.model.spec.to_toml()  # the rival's structure, for `design --after`
+            info["other_spec"] = spec_toml(result)  # the rival's structure, for `design --after`
             if name == found.preferred.get("over"):  # the flexible shape reported draws this one too
                 info |= {"carried": True, "reported": found.preferred["candidate"]}
             else:
                 info |= {"carried": False}
             best = (max(moved.values()), info)
     return None if best is None else best[1]
+
+
+def spec_toml(fit) -> str | None:
+    """The spec a fit was made with, as TOML (what `design --after` refits the other structure from); None for
+    a fit that carries no model."""
+    spec = getattr(getattr(fit, "model", None), "spec", None)
+    return None if spec is None else spec.to_toml()
+
