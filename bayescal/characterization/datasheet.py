@@ -18,12 +18,12 @@ import numpy as np
 import pandas as pd
 
 from bayescal.characterization.emva1288 import QUANT, Characterization
-from bayescal.characterization.pattern import pattern_images, pattern_sd_draws, spectrogram
+from bayescal.characterization.pattern import pattern_images, pattern_sd_draws, profile, spectrogram
 from bayescal.io.outputs import write_text_atomic
 from bayescal.report.figures import png_base64, save_figure, subplots
 from bayescal.report.page import escape, image, page, table
 
-__all__ = ["write_datasheet", "write_curves", "snr_band"]
+__all__ = ["write_datasheet", "write_datasheet_pdf", "write_curves", "snr_band"]
 
 #: the posterior draws drawn into each band (a subset of the characterisation's 4000)
 BAND_DRAWS = 1000
@@ -211,6 +211,31 @@ def _spectrograms(res: Characterization) -> str | None:
     return png_base64(fig)
 
 
+def _profiles(res: Characterization) -> str | None:
+    """Horizontal and vertical profiles of each pattern image (the mean of each column and of each row)
+    beside the band a Gaussian white pattern of the posterior's DSNU and PRNU would give (its standard
+    deviation over the pixels averaged): shading and column or row patterns stand out of it."""
+    found = _pattern_figure(res, 2, 2, (10.0, 7.0))
+    if found is None:
+        return None
+    images, sds, fig, axes = found
+    for row, (name, pattern) in zip(axes, images.items(), strict=True):
+        unit, _ = PATTERNS[name]
+        for ax, (axis, direction, across) in zip(
+            row, ((0, "horizontal", "column"), (1, "vertical", "row")), strict=True
+        ):
+            values = profile(pattern, axis)
+            n = pattern.shape[axis]
+            lo, hi = 1.96 * np.quantile(sds[name], [0.025, 0.975]) / np.sqrt(n)
+            ax.axhspan(-hi, hi, color=BAND, alpha=0.15, lw=0, label="white pattern of the posterior: 95 % of a mean")
+            ax.axhspan(-lo, lo, color=BAND, alpha=0.2, lw=0)
+            ax.plot(np.arange(values.size), values, color="k", lw=0.9, label=f"mean of each {across}")
+            ax.set(xlabel=f"{across} (pixel)", ylabel=f"{name} ({unit})")
+            ax.set_title(f"{name}, {direction} profile", fontsize=10)
+            ax.legend(fontsize=8)
+    return png_base64(fig)
+
+
 def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
     """Write the datasheet page ``out`` (HTML, figures embedded; written atomically)."""
     out = Path(out)
@@ -219,19 +244,7 @@ def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
         "not determinable (no system gain K)" if res.module == "General" else "not determined (one dark exposure time)"
     )
     verdict = {True: "compatible", False: "NOT compatible", None: undetermined}[res.dark_current_compatible]
-    figures = [
-        ("Photon transfer", _figure(_photon_transfer, res)),
-        ("Sensitivity", _figure(_sensitivity, res)),
-        ("Signal-to-noise ratio", _figure(_snr, res)),
-        ("Linearity", _figure(_linearity, res)),
-    ]
-    for title, png in (
-        ("Dark signal", _dark(res)),
-        ("Non-uniformity histograms", _histograms(res)),
-        ("Non-uniformity spectrograms", _spectrograms(res)),
-    ):
-        if png is not None:
-            figures.append((title, png))
+    figures = _figures(res)
     body = [
         "<h1>EMVA 1288 datasheet</h1>",
         f"<p>{escape(res.source)}: the standard's point estimates beside the posterior median and its 95 % "
@@ -265,6 +278,69 @@ def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
     for title, png in figures:
         body.append(f"<h2>{escape(title)}</h2>{image(png, title)}")
     write_text_atomic(out, page("EMVA 1288 datasheet", "\n".join(body)))
+    return out
+
+
+def _figures(res: Characterization) -> list[tuple[str, str]]:
+    """Every plot of the datasheet the set allows, as ``(title, PNG in base64)``."""
+    figures = [
+        ("Photon transfer", _figure(_photon_transfer, res)),
+        ("Sensitivity", _figure(_sensitivity, res)),
+        ("Signal-to-noise ratio", _figure(_snr, res)),
+        ("Linearity", _figure(_linearity, res)),
+    ]
+    for title, png in (
+        ("Dark signal", _dark(res)),
+        ("Non-uniformity histograms", _histograms(res)),
+        ("Non-uniformity spectrograms", _spectrograms(res)),
+        ("Non-uniformity profiles", _profiles(res)),
+    ):
+        if png is not None:
+            figures.append((title, png))
+    return figures
+
+
+def _cover(res: Characterization, size: tuple[float, float]):
+    """The printable datasheet's first page: the source, the module, the operating point, the quantities."""
+    fig, ax = subplots(figsize=size)
+    ax.axis("off")
+    module = "Release 4 Linear" if res.module == "Linear" else "Release 4 General (K not determinable)"
+    fig.text(0.06, 0.96, "EMVA 1288 datasheet", fontsize=16, weight="bold")
+    fig.text(0.06, 0.94, f"{res.source}  |  {module}", fontsize=8)
+    for frame, box in (
+        (_operating(res.operating), (0.06, 0.70, 0.88, 0.22)),
+        (_shown(res.table).drop(columns=["note"]), (0.06, 0.05, 0.88, 0.6)),
+    ):
+        sub = fig.add_axes(box)
+        sub.axis("off")
+        table = sub.table(cellText=frame.to_numpy().tolist(), colLabels=list(frame.columns), loc="upper left")
+        table.auto_set_font_size(False)
+        table.set_fontsize(7)
+    return fig
+
+
+def write_datasheet_pdf(res: Characterization, out: str | os.PathLike) -> Path:
+    """The datasheet in a printable form (PDF, A4, written atomically): a first page with the source, the
+    module that applies, the operating point and the quantities, then one page per plot."""
+    import base64
+    import io
+
+    import matplotlib.image as mpimg
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    from bayescal.io.outputs import atomic_path
+
+    out = Path(out)
+    a4 = (8.27, 11.69)
+    with atomic_path(out) as tmp, PdfPages(tmp) as pdf:
+        pdf.savefig(_cover(res, a4))
+        for title, png in _figures(res):
+            image = mpimg.imread(io.BytesIO(base64.b64decode(png)), format="png")
+            fig, ax = subplots(figsize=a4)
+            ax.imshow(image)
+            ax.axis("off")
+            ax.set_title(title)
+            pdf.savefig(fig)
     return out
 
 

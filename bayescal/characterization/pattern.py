@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["pattern_images", "pattern_sd_draws", "spectrogram"]
+__all__ = ["pattern_images", "pattern_sd_draws", "profile", "spectrogram"]
 
 
 def pattern_images(stack: dict) -> dict[str, np.ndarray] | None:
@@ -91,3 +91,11 @@ def pattern_sd_draws(stack: dict, draws: dict) -> dict[str, np.ndarray] | None:
         "DSNU": np.sqrt(dsnu_dn**2 + residual_dark),
         "PRNU": 100.0 * np.sqrt(prnu_dn**2 + residual_lit) / signal,
     }
+
+
+def profile(image: np.ndarray, axis: int) -> np.ndarray:
+    """The standard's profile of a pattern image: the mean of each column (``axis=0``: the horizontal
+    profile, one value per column) or of each row (``axis=1``: the vertical profile, one per row).  A white
+    pattern of standard deviation ``s`` gives a flat profile whose values scatter by ``s / sqrt(n)`` (``n``
+    the pixels averaged); shading or column and row patterns stand out of that band."""
+    return np.asarray(image, dtype=np.float64).mean(axis=axis)

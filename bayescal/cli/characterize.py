@@ -9,7 +9,7 @@ from pathlib import Path
 def cmd_characterize(args) -> int:
     import dataclasses
 
-    from bayescal.characterization.datasheet import write_curves, write_datasheet
+    from bayescal.characterization.datasheet import write_curves, write_datasheet, write_datasheet_pdf
     from bayescal.characterization.emva1288 import characterize
     from bayescal.cli.progress import stage_reporter
     from bayescal.io.emva import load_steps
@@ -32,6 +32,7 @@ def cmd_characterize(args) -> int:
         res.curves.to_csv(staged("curves.csv"), index=False, float_format="%.8g")
         write_curves(res, staged("photon_transfer.png"))
         write_datasheet(res, staged("datasheet.html"))
+        write_datasheet_pdf(res, staged("datasheet.pdf"))
     op = res.operating
     print(
         f"EMVA 1288 characterisation of {args.input}: {op['bits']}-bit, {op['bright_steps']} bright steps, exposures "

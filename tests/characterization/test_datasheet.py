@@ -51,3 +51,18 @@ def test_the_datasheet_opens_with_the_operating_point_the_set_records(ccd, tmp_p
     assert html.index("Operating point") < html.index("Quantities")
     assert "<td>bit depth</td><td>12</td>" in html and "not recorded in the set&#x27;s files" in html
     assert "not recorded (a reduced table" in html
+
+
+def test_a_column_pattern_stands_out_of_the_white_profile():
+    """The horizontal profile (the mean of each column) of a white pattern scatters by its sd / sqrt(rows); a
+    column pattern of 0.5 sd stands 11 of those out (closed form on a 500 x 64 white image)."""
+    from bayescal.characterization.pattern import profile
+
+    rng = np.random.default_rng(3)
+    white = rng.standard_normal((500, 64))
+    flat = profile(white, 0)
+    assert flat.shape == (64,) and abs(np.std(flat) * np.sqrt(500) - 1.0) < 0.25  # sd of 64 means: MC error ~0.09
+    striped = white + 0.5 * (np.arange(64) % 8 == 0)
+    assert profile(striped, 0)[::8].min() > 3.0 / np.sqrt(500)  # every striped column out of the band
+    assert profile(striped, 1).shape == (500,)
+

@@ -38,5 +38,12 @@ def test_a_copied_series_characterises_from_its_folder(tmp_path, monkeypatch, ca
     k = next(r for r in result["quantities"] if r["quantity"] == "K")
     assert np.isclose(k["standard"], 0.28, rtol=0.1)
     html = (tmp_path / "ccd" / "datasheet.html").read_text()
-    for plot in ("Dark signal", "Non-uniformity histograms", "Non-uniformity spectrograms"):  # every plot
+    plots = ("Dark signal", "Non-uniformity histograms", "Non-uniformity spectrograms", "Non-uniformity profiles")
+    for plot in plots:  # every plot of the standard's datasheet
         assert f'<img alt="{plot}"' in html, plot
+    # the printable form: a cover page (operating point, quantities) and a page per plot
+    pdf = (tmp_path / "ccd" / "datasheet.pdf").read_bytes()
+    assert pdf.startswith(b"%PDF") and pdf.count(b"/Type /Page\n") + pdf.count(b"/Type /Page ") >= 1
+    import re
+
+    assert len(re.findall(rb"/Type\s*/Page[^s]", pdf)) == 1 + html.count("<img alt=")

@@ -121,7 +121,7 @@ def test_the_pattern_images_match_the_posteriors_spread_on_the_real_ccd():
 def test_the_datasheet_shows_the_histograms_and_spectrograms_where_images_exist(tmp_path):
     html = write_datasheet(bc.characterize(bc.load_steps(CROP), seed=0), tmp_path / "d.html").read_text()
     alts = re.findall(r'<img alt="([^"]*)" src="data:image/png;base64,', html)
-    assert alts[-2:] == ["Non-uniformity histograms", "Non-uniformity spectrograms"]
+    assert alts[-3:] == ["Non-uniformity histograms", "Non-uniformity spectrograms", "Non-uniformity profiles"]
     # a reduced table has no images: no pattern pictures, no error
     steps = bc.load_steps(ROOT / "tests" / "data" / "emva1288" / "refset001_ccd_12bit" / "steps.csv")
     assert pattern_images(steps.stack) is None

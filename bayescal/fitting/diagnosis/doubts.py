@@ -128,4 +128,3 @@ def spec_toml(fit) -> str | None:
     a fit that carries no model."""
     spec = getattr(getattr(fit, "model", None), "spec", None)
     return None if spec is None else spec.to_toml()
-
