@@ -9,6 +9,7 @@ from pathlib import Path
 
 from bayescal.cli.calibrate import cmd_demo, cmd_fit, cmd_report, cmd_sbc, cmd_select, cmd_simulate
 from bayescal.cli.characterize import cmd_characterize
+from bayescal.cli.completion import cmd_completion
 from bayescal.cli.design import cmd_design
 from bayescal.cli.examples import cmd_examples
 from bayescal.cli.fleet import cmd_fleet, cmd_fleet_query, cmd_fleet_simulate
@@ -372,6 +373,13 @@ def _examples(sub) -> None:
     ex.set_defaults(func=cmd_examples)
 
 
+def _completion(sub) -> None:
+    """The arguments of ``bayescal completion``."""
+    c = sub.add_parser("completion", help='a shell completion script: eval "$(bayescal completion bash)"')
+    c.add_argument("shell", choices=("bash",), help="the shell (zsh: bashcompinit reads the bash script)")
+    c.set_defaults(func=cmd_completion)
+
+
 def _demo(sub) -> None:
     """The arguments of ``bayescal demo``."""
     d = sub.add_parser("demo", help="simulate the seed 000 camera, fit it, compare with least squares")
@@ -399,6 +407,7 @@ VERBS = (
     _fleet_query,
     _fleet_simulate,
     _examples,
+    _completion,
     _demo,
 )  # in the order of the command's help
 
