@@ -65,4 +65,3 @@ def test_a_column_pattern_stands_out_of_the_white_profile():
     striped = white + 0.5 * (np.arange(64) % 8 == 0)
     assert profile(striped, 0)[::8].min() > 3.0 / np.sqrt(500)  # every striped column out of the band
     assert profile(striped, 1).shape == (500,)
-
