@@ -444,13 +444,6 @@ iso_date = _checked(lambda t: checks.date(t, "value").date().isoformat())
 address = _checked(lambda t: scheduler_address(t, "value"))
 
 
-def positives(text: str) -> list[float]:
-    values = floats(text)
-    if any(v <= 0 for v in values):
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers above 0, got '{text}'")
-    return values
-
-
 def window(text: str) -> list[float]:
     values = floats(text)
     if len(values) != 2 or not 0 <= values[0] < values[1]:
