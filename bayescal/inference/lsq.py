@@ -108,6 +108,14 @@ def polyfit(x: np.ndarray, y: np.ndarray, order: int, *, intercept: bool = True)
     of two (exact); residuals are evaluated on the original ``x`` by
     compensated Horner, so the rounding of the scaled powers does not enter
     the residual sd.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> x = np.array([0.0, 1.0, 2.0, 3.0, 4.0])
+    >>> bc.polyfit(x, 2.0 + 3.0 * x, 1).coef
+    array([2., 3.])
     """
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)

@@ -159,7 +159,15 @@ class Design:
 
 def load_design(path: str | os.PathLike) -> Design:
     """Load a :class:`Design` (with optional truth) from TOML; ``path`` may also name a shipped design
-    (``"seed000"``: :func:`bayescal.io.resources.example_path`)."""
+    (``"seed000"``: :func:`bayescal.io.resources.example_path`).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> design = bc.load_design("seed000")  # the seed-000 campaign: 12 sphere levels
+    >>> len(design.levels), design.levels[:3]
+    (12, (1.5, 3.0, 5.0279))
+    """
     from bayescal.io.resources import example_path
 
     path = example_path(path, "design")

@@ -314,10 +314,18 @@ def read_descriptor(path: str | os.PathLike, progress: Callable[[int], None] | N
 
 def load_steps(path: str | os.PathLike) -> Steps:
     """Load a descriptor (``.txt``, or the folder that holds ``EMVA1288_Data.txt``), the cropped arrays
-    (``.npz``) or a reduced table (``.csv``)."""
-    from bayescal.io.resources import DESCRIPTOR
+    (``.npz``) or a reduced table (``.csv``); or a shipped set by name (``"emva"``, ``"ccd_fits"``).
 
-    path = Path(path)
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> steps = bc.load_steps("emva")  # the real CCD's reduced table (EMVA 1288 reference set 001)
+    >>> len(steps.bright), steps.bits
+    (50, 12)
+    """
+    from bayescal.io.resources import DESCRIPTOR, example_path
+
+    path = example_path(path, "data")
     if path.is_dir() and (path / DESCRIPTOR).is_file():
         path = path / DESCRIPTOR
     if not path.is_file():

@@ -126,7 +126,8 @@ def did_you_mean(path: str | os.PathLike) -> str:
     def rank(c: str) -> tuple:  # the closest; among equals, what the name begins, then the first by name
         return -difflib.SequenceMatcher(None, path.name, c).ratio(), not c.startswith(path.name), c
 
-    close = sorted(difflib.get_close_matches(path.name, sorted(shipped) + beside, n=5, cutoff=0.6), key=rank)
+    found = difflib.get_close_matches(path.name, sorted(shipped) + beside, n=5, cutoff=0.6)
+    close = sorted((c for c in found if c != path.name), key=rank)  # never the very name that was not found
     if not close:
         return ""
     where = " (a shipped example; `bayescal examples` lists them)" if close[0] in shipped else ""

@@ -18,6 +18,12 @@ class Setting:
 
     ``temperature_c = None`` means the calibration's reference temperature
     (it matters only for a calibration with a temperature-dependent dark current).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> bc.Setting(0.01, 2.0)  # 1/100 s at gain 2
+    Setting(exposure_s=0.01, gain=2.0, tdi_stages=1.0, temperature_c=None)
     """
 
     exposure_s: float

@@ -115,6 +115,13 @@ def simulate(spec: ModelSpec, design: Design, truth: Truth | None = None, seed: 
         The camera; defaults to ``design.truth``.
     seed : int
         Seed of every random draw (sphere errors, noise).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> sim = bc.simulate(bc.load_spec("seed000"), bc.load_design("seed000"), seed=1)
+    >>> len(sim.table), sorted(sim.table.frame["channel"].unique())
+    (192, ['B', 'G', 'R'])
     """
     truth = truth or design.truth
     if truth is None:

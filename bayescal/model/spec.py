@@ -298,7 +298,15 @@ def _instance(value: Any) -> bool:
 def load_spec(path: str | os.PathLike) -> ModelSpec:
     """Load a model spec from a TOML file (see ``models/*.toml``): a :class:`ModelSpec`, or the spec of
     the kind the file names (``kind = "film"``, :mod:`bayescal.model.kinds`).  ``path`` may also name a
-    shipped spec (``"seed000"``: :func:`bayescal.io.resources.example_path`)."""
+    shipped spec (``"seed000"``: :func:`bayescal.io.resources.example_path`).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> spec = bc.load_spec("seed000")  # a shipped spec by name, or the path of your own TOML
+    >>> spec.response.order, spec.full_scale
+    (2, 4095.0)
+    """
     from bayescal.io.resources import example_path
 
     path = example_path(path, "spec")

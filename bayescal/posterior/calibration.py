@@ -242,6 +242,13 @@ class Calibration:
         dark_proportional : bool
             Offset scales with the gain factor (seed 002 eq. 12); otherwise
             it is kept at every setting (seed 000 section 5.3).
+
+        Examples
+        --------
+        >>> import bayescal as bc
+        >>> cal = bc.Calibration.from_coefficients({"G": [45.0, 30.0]}, reference=bc.Reference(0.004), bits=12)
+        >>> cal.channels
+        ('G',)
         """
         channels = tuple(coefficients)
         arr = [np.asarray(coefficients[c], dtype=float) for c in channels]

@@ -188,6 +188,17 @@ def invert(
         DN (the papers' point inversion, seed 000 section 6).
     seed : int
         Seed of the noise draws.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> cal = bc.Calibration.from_coefficients({"G": [45.0, 30.0]}, reference=bc.Reference(0.004), bits=12)
+    >>> inv = bc.invert(cal, np.array([645.0]), "G", bc.Setting(0.008))
+    >>> inv.to_frame()[["dn", "bound"]].to_dict("records")
+    [{'dn': 645.0, 'bound': 'two-sided'}]
+    >>> bool(abs(inv.to_frame()["median"].iloc[0] - 10.0) < 0.05)  # the radiance that reads 645 DN
+    True
     """
     if not isinstance(cal, Calibration):  # a posterior of another model kind inverts its own readings
         return cal.invert(dn, channel, setting, n_avg=n_avg, prnu=prnu, level=level, noise=noise, seed=seed)

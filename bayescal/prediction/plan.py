@@ -34,7 +34,14 @@ __all__ = ["Plan", "plan_exposure", "default_window"]
 
 
 def default_window(bits: int) -> tuple[float, float]:
-    """Target DN window: seed 000's 1080-1920 DN for 12 bits, the same fractions of full scale otherwise."""
+    """Target DN window: seed 000's 1080-1920 DN for 12 bits, the same fractions of full scale otherwise.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> bc.default_window(12)
+    (1080.0, 1920.0)
+    """
     fs = 2**bits - 1
     return (1080.0 / 4095.0 * fs, 1920.0 / 4095.0 * fs)
 

@@ -58,6 +58,14 @@ def predict(
         ci_lo/ci_hi (credible interval of the expected DN), pi_lo/pi_hi
         (predictive interval of one reading), p_saturated, extrapolated and
         the reason.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> cal = bc.Calibration.from_coefficients({"G": [45.0, 30.0]}, reference=bc.Reference(0.004), bits=12)
+    >>> table = bc.predict(cal, [10.0], bc.Setting(0.008), "G")  # twice the reference exposure
+    >>> float(table["dn_median"].iloc[0])
+    645.0
     """
     stim = np.atleast_1d(np.asarray(stimulus, dtype=float))
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xD1CE]))
