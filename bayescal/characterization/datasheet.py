@@ -57,33 +57,33 @@ def _figure(draw, res: Characterization) -> str:
     return png_base64(fig)
 
 
-def _photon_transfer(ax, res: Characterization) -> None:
-    c, r, p = res.curves, res.ranges, res.standard
+def _fitted_curve(ax, res: Characterization, xs, ys, name: str, slope: float, label: str, axes: tuple) -> None:
+    """A curve of the steps, its fit range (the standard's, up to 70 % of saturation), the posterior's band of
+    the fitted polynomial ``name`` and the standard's straight line of ``slope`` through the origin."""
+    r = res.ranges
     s = slice(r["index_sensitivity_min"], r["index_sensitivity_max"] + 1)
-    ax.plot(c["signal"], c["var_signal"], "o", ms=3, color="0.55", label="steps")
-    ax.plot(c["signal"][s], c["var_signal"][s], "o", ms=4, color="k", label="fit range (<= 70 % sat.)")
-    x = np.linspace(0.0, float(c["signal"][s].max()), 80)
-    found = _draws(res, "photon_transfer")
+    ax.plot(xs, ys, "o", ms=3, color="0.55", label="steps")
+    ax.plot(xs[s], ys[s], "o", ms=4, color="k", label="fit range (<= 70 % sat.)")
+    x = np.linspace(0.0, float(xs[s].max()), 80)
+    found = _draws(res, name)
     if found is not None:
         _band(ax, x, _poly(*found, x), "posterior")
-    if np.isfinite(p["K"]):
-        ax.plot(x, p["K"] * x, "--", color=STANDARD, label=f"standard: K = {p['K']:.4g} DN/e-")
-    ax.set(xlabel="mean signal mu_y - mu_dark (DN)", ylabel="variance s2_y - s2_dark (DN^2)", title="photon transfer")
+    if np.isfinite(slope):
+        ax.plot(x, slope * x, "--", color=STANDARD, label=label)
+    ax.set(xlabel=axes[0], ylabel=axes[1], title=axes[2])
     ax.legend(fontsize=9)
+
+
+def _photon_transfer(ax, res: Characterization) -> None:
+    c, k = res.curves, res.standard["K"]
+    axes = ("mean signal mu_y - mu_dark (DN)", "variance s2_y - s2_dark (DN^2)", "photon transfer")
+    _fitted_curve(ax, res, c["signal"], c["var_signal"], "photon_transfer", k, f"standard: K = {k:.4g} DN/e-", axes)
 
 
 def _sensitivity(ax, res: Characterization) -> None:
-    c, r, p = res.curves, res.ranges, res.standard
-    s = slice(r["index_sensitivity_min"], r["index_sensitivity_max"] + 1)
-    ax.plot(c["photons"], c["signal"], "o", ms=3, color="0.55", label="steps")
-    ax.plot(c["photons"][s], c["signal"][s], "o", ms=4, color="k", label="fit range (<= 70 % sat.)")
-    x = np.linspace(0.0, float(c["photons"][s].max()), 80)
-    found = _draws(res, "sensitivity")
-    if found is not None:
-        _band(ax, x, _poly(*found, x), "posterior")
-    ax.plot(x, p["R"] * x, "--", color=STANDARD, label=f"standard: R = {p['R']:.4g} DN/photon")
-    ax.set(xlabel="photons per pixel", ylabel="mean signal mu_y - mu_dark (DN)", title="sensitivity")
-    ax.legend(fontsize=9)
+    c, resp = res.curves, res.standard["R"]
+    axes = ("photons per pixel", "mean signal mu_y - mu_dark (DN)", "sensitivity")
+    _fitted_curve(ax, res, c["photons"], c["signal"], "sensitivity", resp, f"standard: R = {resp:.4g} DN/photon", axes)
 
 
 def snr_band(res: Characterization, photons: np.ndarray) -> np.ndarray:
