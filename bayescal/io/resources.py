@@ -59,24 +59,23 @@ def _kind(path: Path) -> str:
 
 
 def _about(path: Path) -> str:
+    """What a shipped file is: its opening comment's first sentence (comment lines joined), or what its
+    kind says."""
     if path.suffix in IMAGES:
         form = "FITS" if path.suffix == ".fits" else "TIFF"
         return f"a raw RGGB frame of the seed 000 camera at 1/250 s, gain 1 ({form}; models/make_frames.py)"
-    if path.name == DESCRIPTOR:
-        return next(
-            (
-                line.lstrip("# ").strip()
-                for line in path.read_text(encoding="utf-8").splitlines()
-                if line.startswith("#")
-            ),
-            "an EMVA 1288 image set",
-        )
-    if path.suffix != ".toml":
-        return "example measurements"
+    if path.suffix not in (".toml", ".txt"):
+        return "the shipped EMVA 1288 reference table" if path.name.startswith("emva") else "example measurements"
+    comment = []
     for line in path.read_text(encoding="utf-8").splitlines():
-        if line.startswith("#"):
-            return line.lstrip("# ").strip()
-    return ""
+        if not line.startswith("#"):
+            if comment:
+                break
+            continue
+        comment.append(line.lstrip("# ").strip())
+        if comment[-1].endswith((".", ":", ";", ")")):  # the first sentence ends with its line
+            break
+    return " ".join(comment).rstrip(".:;") or "an EMVA 1288 image set"
 
 
 @functools.cache
