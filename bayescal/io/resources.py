@@ -66,7 +66,7 @@ def _about(path: Path) -> str:
         return f"a raw RGGB frame of the seed 000 camera at 1/250 s, gain 1 ({form}; models/make_frames.py)"
     if path.suffix not in (".toml", ".txt"):
         return "the shipped EMVA 1288 reference table" if path.name.startswith("emva") else "example measurements"
-    comment = []
+    comment: list[str] = []
     for line in path.read_text(encoding="utf-8").splitlines():
         if not line.startswith("#"):
             if comment:
