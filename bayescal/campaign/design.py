@@ -24,7 +24,7 @@ import pandas as pd
 from bayescal._config import computes
 from bayescal.campaign import checks as model_checks
 from bayescal.campaign.discriminate import Discrimination, telling_apart
-from bayescal.campaign.grid import Grid
+from bayescal.campaign.grid import Grid, with_rows
 from bayescal.campaign.information import Linearisation, Targets, linearise
 from bayescal.campaign.search import Costs, cost_of, greedy, pruned, relaxed, trimmed
 from bayescal.errors import SpecError
@@ -451,11 +451,7 @@ def _measured(grid: Grid, after, say: Callable[[str], None]) -> _State:
     measured = np.bincount(at[(at >= 0) & first], minlength=len(grid))
     todo = [g for g, n in zip(grid.groups, measured, strict=True) if n == 0]
     candidates = _placeholder_rows(todo, grid, cal, frame)
-    union = pd.concat([frame, candidates], ignore_index=True)
-    fills = {"replicate": 0.0, "time_s": frame.get("time_s", pd.Series([0.0])).max()}
-    if "radiance_u_rel" in frame:
-        fills["radiance_u_rel"] = frame["radiance_u_rel"].median()
-    union = union.fillna({k: v for k, v in fills.items() if k in union})
+    union = with_rows(frame, candidates)
     union = union.rename(columns={"stimulus": spec.stimulus})
     table = MeasurementTable.from_frame(union, source=f"{folder.posterior_path} and the grid's groups not measured")
     say("finding the campaign's mode")

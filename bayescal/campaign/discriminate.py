@@ -23,7 +23,7 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
-from bayescal.campaign.grid import Grid
+from bayescal.campaign.grid import Grid, with_rows
 from bayescal.errors import SpecError
 from bayescal.inference.laplace import laplace
 from bayescal.inference.program import program_for
@@ -105,11 +105,7 @@ def telling_apart(
     other = ModelSpec.from_dict(tomllib.loads(text), source="the fit's structure diagnostic")
     # a group measured already is a candidate too (a repeat): its placeholder is another replicate of it
     first_free = float(frame["replicate"].max()) + 1 if "replicate" in frame else 1.0
-    union = pd.concat([frame, placeholders.assign(replicate=first_free)], ignore_index=True)
-    fills = {"replicate": 0.0, "time_s": frame.get("time_s", pd.Series([0.0])).max()}
-    if "radiance_u_rel" in frame:
-        fills["radiance_u_rel"] = frame["radiance_u_rel"].median()
-    union = union.fillna({k: v for k, v in fills.items() if k in union})
+    union = with_rows(frame, placeholders.assign(replicate=first_free))
     done = np.arange(len(union)) < len(frame)
     predicted = {}
     for name, s in (("reported", spec), ("other", other)):

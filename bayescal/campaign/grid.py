@@ -18,7 +18,7 @@ import pandas as pd
 from bayescal.errors import SpecError
 from bayescal.io.design import Block, Design
 
-__all__ = ["Group", "Grid"]
+__all__ = ["Group", "Grid", "with_rows"]
 
 
 @dataclass(frozen=True)
@@ -176,3 +176,14 @@ class Grid:
             group = Group(float(t), float(g), float(m), None if np.isnan(tc) else float(tc), level)
             out[r] = positions.get(group, -1)
         return out
+
+
+def with_rows(frame: pd.DataFrame, rows: pd.DataFrame) -> pd.DataFrame:
+    """A fit's measured table with rows to predict appended (a grid's placeholders), the columns the
+    placeholders lack filled as the measured rows imply: replicate 0, the session's last ``time_s``, the
+    levels' median ``radiance_u_rel``.  The measured rows come first."""
+    union = pd.concat([frame, rows], ignore_index=True)
+    fills = {"replicate": 0.0, "time_s": frame.get("time_s", pd.Series([0.0])).max()}
+    if "radiance_u_rel" in frame:
+        fills["radiance_u_rel"] = frame["radiance_u_rel"].median()
+    return union.fillna({k: v for k, v in fills.items() if k in union})
