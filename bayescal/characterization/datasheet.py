@@ -190,50 +190,52 @@ def _histograms(res: Characterization) -> str | None:
     return png_base64(fig)
 
 
-def _spectrograms(res: Characterization) -> str | None:
-    """Horizontal and vertical spectrograms of each pattern image beside the posterior's white level: a
-    peak above the band is a periodic pattern (column or row fixed-pattern noise)."""
+def _directions(res: Characterization, draw) -> str | None:
+    """A 2 x 2 figure of the pattern images: per image (DSNU, PRNU) a horizontal and a vertical panel, each
+    drawn by ``draw(ax, name, pattern, sd_draws, unit, horizontal)``; None without image stacks."""
     found = _pattern_figure(res, 2, 2, (10.0, 7.0))
     if found is None:
         return None
     images, sds, fig, axes = found
     for row, (name, pattern) in zip(axes, images.items(), strict=True):
         unit, _ = PATTERNS[name]
-        lo, hi = np.quantile(sds[name], [0.025, 0.975])
-        for ax, (axis, direction) in zip(row, ((1, "horizontal"), (0, "vertical")), strict=True):
-            freq, amplitude = spectrogram(pattern, axis)
-            ax.plot(freq, amplitude, color="k", lw=0.9, label="spectrogram")
-            ax.axhspan(lo, hi, color=BAND, alpha=0.25, lw=0, label="white pattern of the posterior: 95 % band")
-            ax.axhline(float(np.median(sds[name])), color=BAND, lw=1.2, label="its posterior median")
-            ax.set(yscale="log", xlabel="frequency (cycles/pixel)", ylabel=f"amplitude ({unit})")
-            ax.set_title(f"{name}, {direction}", fontsize=10)
+        for ax, horizontal in zip(row, (True, False), strict=True):
+            draw(ax, name, pattern, sds[name], unit, horizontal)
+            ax.set_title(f"{name}, {'horizontal' if horizontal else 'vertical'}", fontsize=10)
             ax.legend(fontsize=8)
     return png_base64(fig)
+
+
+def _spectrograms(res: Characterization) -> str | None:
+    """Horizontal and vertical spectrograms of each pattern image beside the posterior's white level: a
+    peak above the band is a periodic pattern (column or row fixed-pattern noise)."""
+
+    def draw(ax, name, pattern, sd, unit, horizontal):
+        freq, amplitude = spectrogram(pattern, 1 if horizontal else 0)  # along each row, or each column
+        lo, hi = np.quantile(sd, [0.025, 0.975])
+        ax.plot(freq, amplitude, color="k", lw=0.9, label="spectrogram")
+        ax.axhspan(lo, hi, color=BAND, alpha=0.25, lw=0, label="white pattern of the posterior: 95 % band")
+        ax.axhline(float(np.median(sd)), color=BAND, lw=1.2, label="its posterior median")
+        ax.set(yscale="log", xlabel="frequency (cycles/pixel)", ylabel=f"amplitude ({unit})")
+
+    return _directions(res, draw)
 
 
 def _profiles(res: Characterization) -> str | None:
     """Horizontal and vertical profiles of each pattern image (the mean of each column and of each row)
     beside the band a Gaussian white pattern of the posterior's DSNU and PRNU would give (its standard
     deviation over the pixels averaged): shading and column or row patterns stand out of it."""
-    found = _pattern_figure(res, 2, 2, (10.0, 7.0))
-    if found is None:
-        return None
-    images, sds, fig, axes = found
-    for row, (name, pattern) in zip(axes, images.items(), strict=True):
-        unit, _ = PATTERNS[name]
-        for ax, (axis, direction, across) in zip(
-            row, ((0, "horizontal", "column"), (1, "vertical", "row")), strict=True
-        ):
-            values = profile(pattern, axis)
-            n = pattern.shape[axis]
-            lo, hi = 1.96 * np.quantile(sds[name], [0.025, 0.975]) / np.sqrt(n)
-            ax.axhspan(-hi, hi, color=BAND, alpha=0.15, lw=0, label="white pattern of the posterior: 95 % of a mean")
-            ax.axhspan(-lo, lo, color=BAND, alpha=0.2, lw=0)
-            ax.plot(np.arange(values.size), values, color="k", lw=0.9, label=f"mean of each {across}")
-            ax.set(xlabel=f"{across} (pixel)", ylabel=f"{name} ({unit})")
-            ax.set_title(f"{name}, {direction} profile", fontsize=10)
-            ax.legend(fontsize=8)
-    return png_base64(fig)
+
+    def draw(ax, name, pattern, sd, unit, horizontal):
+        axis, across = (0, "column") if horizontal else (1, "row")  # the mean of each column, or each row
+        values = profile(pattern, axis)
+        lo, hi = 1.96 * np.quantile(sd, [0.025, 0.975]) / np.sqrt(pattern.shape[axis])
+        ax.axhspan(-hi, hi, color=BAND, alpha=0.15, lw=0, label="white pattern of the posterior: 95 % of a mean")
+        ax.axhspan(-lo, lo, color=BAND, alpha=0.2, lw=0)
+        ax.plot(np.arange(values.size), values, color="k", lw=0.9, label=f"mean of each {across}")
+        ax.set(xlabel=f"{across} (pixel)", ylabel=f"{name} ({unit})")
+
+    return _directions(res, draw)
 
 
 def write_datasheet(res: Characterization, out: str | os.PathLike) -> Path:
