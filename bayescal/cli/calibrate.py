@@ -118,8 +118,7 @@ def cmd_demo(args) -> int:
     print(f"Simulated the seed 000 Bayer CCD: {len(sim.table)} rows, sphere scale error {sim.sphere_scale - 1:+.2%}")
     print(
         "True gains, A1 (DN per W m^-2 sr^-1 at gain 1, 1/250 s; compare with the A1 rows' 'Bayes absolute' "
-        "column below): "
-        + ", ".join(f"{c} {v[0]:g}" for c, v in sim.truth.response.items())
+        "column below): " + ", ".join(f"{c} {v[0]:g}" for c, v in sim.truth.response.items())
     )
     return run_fit(sim.table, spec, args.backend, args.seed, out, args.quiet, report=True, measurements=True)
 

@@ -43,7 +43,7 @@ def test_a_copied_series_characterises_from_its_folder(tmp_path, monkeypatch, ca
         assert f'<img alt="{plot}"' in html, plot
     # the printable form: a cover page (operating point, quantities) and a page per plot
     pdf = (tmp_path / "ccd" / "datasheet.pdf").read_bytes()
-    assert pdf.startswith(b"%PDF") and pdf.count(b"/Type /Page\n") + pdf.count(b"/Type /Page ") >= 1
+    assert pdf.startswith(b"%PDF")
     import re
 
     assert len(re.findall(rb"/Type\s*/Page[^s]", pdf)) == 1 + html.count("<img alt=")
