@@ -27,8 +27,9 @@ from bayescal.fleet.model import (
     standard_normals,
 )
 from bayescal.fleet.spec import FleetSpec
-from bayescal.inference.chains import Phased, attempt_seed, map_chains, run_phases, with_retries
+from bayescal.inference.chains import attempt_seed, map_chains, with_retries
 from bayescal.inference.laplace import find_map
+from bayescal.inference.phases import Phased, run_phases
 from bayescal.inference.program import Objective
 from bayescal.model.spec import InferenceSpec
 
@@ -183,7 +184,7 @@ def _latents(plan: Plan, hyper: dict, args: dict, rng: np.random.Generator) -> t
 
 
 def _run_chains(plan: Plan, spec: FleetSpec, args: dict, seed: int, inference: InferenceSpec | None = None) -> Phased:
-    """Every chain by the inference layer's phased NUTS (:func:`bayescal.inference.chains.run_phases`):
+    """Every chain by the inference layer's phased NUTS (:func:`bayescal.inference.phases.run_phases`):
     unconstrained draws ``(chain, draw, dim)``, their divergent transitions and the gradient
     evaluations of warmup and draws.
 

@@ -60,7 +60,7 @@ class FleetSpec:
     ahead is the cameras' trends, walk and jitter.
 
     ``chains``, ``warmup``, ``draws``, ``target_accept``: NUTS on the scales
-    (:func:`bayescal.inference.chains.run_phases`: the Laplace approximation's mass matrix, the step
+    (:func:`bayescal.inference.phases.run_phases`: the Laplace approximation's mass matrix, the step
     size adapted in warmup); while their bulk or tail ESS is below ``[inference] min_ess`` (or their
     R-hat above ``max_rhat``) every chain continues for another ``draws`` draws, ``extend`` times at
     most.  Divergences are run again by the inference layer's retry policy

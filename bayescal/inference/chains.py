@@ -17,20 +17,8 @@ smaller steps will not mend).  :func:`with_retries` is the loop, with one seed r
 (:func:`attempt_seed`): a camera's fit (:mod:`bayescal.inference.nuts`, many datasets at once) and the
 fleet's stage two (:mod:`bayescal.fleet.sampling`) both run through it.
 
-**Phases** (:func:`run_phases`).  NUTS on a potential ``potential(u, arrays)`` whose scale is known
-in advance (a diagonal inverse mass matrix from a Laplace approximation), with only the step size
-adapted, by dual averaging toward the target acceptance, in two halves of the warmup: the second
-restarts from the first's average once the chains have left their starting points, and the
-chains then share the geometric mean of their averaged steps.  The draws follow; while they do not
-pass ``mixed`` the chains continue from their last state with the same step and mass, ``extend``
-times at most.  Each phase is one program compiled per (potential, length, adaptation), so every
-dataset of one structure shares it; chains run on threads (XLA releases the GIL while a chain runs).
-
-A camera's fit adapts its mass matrix as well (numpyro's windowed adaptation, in coordinates whitened
-by the Laplace covariance): its posterior's scales span orders of magnitude that a fixed diagonal
-does not capture.  The fleet's scales are few and near-Gaussian after the latents are integrated
-out, and step-only adaptation took 2.1x fewer gradient evaluations there
-(``benchmarks/results/fleet_speed.md``).
+The one NUTS program is :mod:`bayescal.inference.transitions`; the fleet's phases on it are
+:mod:`bayescal.inference.phases`.
 """
 
 from __future__ import annotations
@@ -40,7 +28,6 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
-from functools import lru_cache
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -48,15 +35,12 @@ import numpy as np
 __all__ = [
     "LAST_RETRY_ACCEPT",
     "LAST_RETRY_MAX_FRACTION",
-    "Phased",
     "Retried",
     "attempt_seed",
     "map_chains",
     "progress_channel",
     "report",
     "retry_target",
-    "run_phases",
-    "step_program",
     "with_retries",
 ]
 
@@ -203,112 +187,3 @@ def map_chains[T](one: Callable[[int], T], n: int, threads: int | None = None) -
         raise
     pool.shutdown()
     return out
-
-
-class Phased(NamedTuple):
-    """Draws of :func:`run_phases`: unconstrained ``z`` ``(chain, draw, dim)``, the divergent transitions
-    among them, and the gradient evaluations of every phase (warmup included)."""
-
-    z: np.ndarray
-    divergences: int
-    gradients: int
-
-
-@lru_cache(maxsize=64)
-def step_program(potential: Callable, n: int, adapt: bool):
-    """``n`` NUTS transitions from ``u`` with a fixed diagonal inverse mass matrix ``imm``, compiled once
-    per (potential, ``n``, ``adapt``): ``run(key, u, imm, step, target, arrays) -> (u_last, step, z,
-    diverging, steps)``.  With ``adapt`` the step size follows dual averaging toward the target
-    acceptance and the returned step is its average (warmup); else it stays (draws)."""
-    import jax
-    import jax.numpy as jnp
-    from numpyro.infer.hmc import hmc
-    from numpyro.infer.hmc_util import dual_averaging
-
-    da_init, da_update = dual_averaging()
-
-    def run(key, u, imm, step, target, arrays):
-        init_kernel, sample_kernel = hmc(potential_fn=lambda x: potential(x, arrays), algo="NUTS")
-        state = init_kernel(
-            u,
-            num_warmup=0,
-            step_size=step,
-            inverse_mass_matrix=imm,
-            adapt_step_size=False,
-            adapt_mass_matrix=False,
-            rng_key=key,
-        )
-
-        def transition(carry, _):
-            st, da = carry
-            st = sample_kernel(st)
-            if adapt:
-                da = da_update(target - st.accept_prob, da)
-                st = st._replace(adapt_state=st.adapt_state._replace(step_size=jnp.exp(da[0])))
-            return (st, da), (st.z, st.diverging, st.num_steps)
-
-        (state, da), out = jax.lax.scan(transition, (state, da_init(jnp.log(10.0 * step))), None, length=n)
-        return (state.z, jnp.exp(da[1]) if adapt else step, *out)
-
-    return jax.jit(run)
-
-
-def run_phases(
-    potential: Callable,
-    arrays: Any,
-    u0: np.ndarray,
-    imm: np.ndarray,
-    *,
-    warmup: int,
-    draws: int,
-    target_accept: float,
-    seed: int,
-    extend: int = 0,
-    mixed: Callable[[np.ndarray], bool] | None = None,
-    threads: int | None = None,
-) -> Phased:
-    """NUTS in phases (the module's docstring) from the chains' starts ``u0`` ``(chain, dim)``.
-
-    Parameters
-    ----------
-    potential : callable
-        ``potential(u, arrays)``, minus the log density; the same object for one structure (it keys
-        the compiled programs).
-    arrays : pytree
-        The data, an argument of the compiled programs.
-    imm : array (dim,)
-        Diagonal inverse mass matrix, kept throughout.
-    mixed : callable, optional
-        ``mixed(z)`` on the draws so far ``(chain, draw, dim)``: True when they are enough; until then
-        every chain continues for another ``draws`` draws, ``extend`` times at most.
-    """
-    import jax
-
-    chains = int(u0.shape[0])
-    key = jax.random.PRNGKey(seed)
-
-    def phase(n: int, adapt: bool, us, steps, tag: int):
-        run = step_program(potential, n, adapt)
-        target = np.float64(target_accept)
-        keys = jax.random.split(jax.random.fold_in(key, tag), chains)
-        return map_chains(lambda c: run(keys[c], us[c], imm, steps[c], target, arrays), chains, threads)
-
-    half = warmup // 2
-    # with the Laplace variances as the mass, the posterior is about unit scale: a first step of 0.5
-    settle = phase(half, True, u0, np.full(chains, 0.5), 0)
-    warm = phase(warmup - half, True, [o[0] for o in settle], [o[1] for o in settle], 1)
-    steps = np.full(chains, np.exp(np.mean([np.log(o[1]) for o in warm])))  # one for all: they share the mass
-    outs = phase(draws, False, [o[0] for o in warm], steps, 2)
-    z = [[np.asarray(o[2])] for o in outs]
-    divergences = int(sum(np.sum(np.asarray(o[3])) for o in outs))
-    gradients = int(sum(np.sum(np.asarray(o[4])) for o in settle + warm + outs))
-    for i in range(extend if mixed is not None else 0):
-        assert mixed is not None  # the loop runs only with it
-        if mixed(np.stack([np.concatenate(c) for c in z])):
-            break
-        outs = phase(draws, False, [o[0] for o in outs], steps, 3 + i)  # the chains go on
-        for c, o in enumerate(outs):
-            z[c].append(np.asarray(o[2]))
-        divergences += int(sum(np.sum(np.asarray(o[3])) for o in outs))
-        gradients += int(sum(np.sum(np.asarray(o[4])) for o in outs))
-    return Phased(np.stack([np.concatenate(c) for c in z]), divergences, gradients)

@@ -1,7 +1,8 @@
 """NUTS (numpyro) over a compiled program: the reference backend.
 
-One chain is one jitted program (init, warmup and draws in a single
-``lax.scan`` pair) built once per model structure, with the data as an
+One chain is the package's one NUTS program
+(:func:`bayescal.inference.transitions.chain_program`: init, warmup and draws in a
+single ``lax.scan`` pair) built once per model structure, with the data as an
 argument (docs/architecture.md, section 4: a naive ``MCMC.run`` re-traces and recompiles
 on each call).  Chains run concurrently on a thread pool: XLA releases the
 GIL, so the chains use every core.  Chains are deliberately *not* vmapped: a
@@ -17,18 +18,17 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from functools import lru_cache
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from numpyro.infer.hmc import hmc
 
 from bayescal._config import computes
-from bayescal.inference.chains import attempt_seed, map_chains, progress_channel, report, with_retries
+from bayescal.inference.chains import attempt_seed, map_chains, progress_channel, with_retries
 from bayescal.inference.laplace import covariance_factor
 from bayescal.inference.program import Program, ProgramData
+from bayescal.inference.transitions import Chain, chain_program
 from bayescal.model.spec import InferenceSpec
 
 __all__ = ["NutsDraws", "run_nuts", "run_nuts_many"]
@@ -47,49 +47,6 @@ class NutsDraws(NamedTuple):
     first_divergences: int = 0
     #: the target acceptance of the run these draws come from, when it was a rerun (0: none)
     rerun_at: float = 0.0
-
-
-_EVERY = 50
-
-
-@lru_cache(maxsize=32)
-def _compiled(program: Program, settings: tuple):
-    """``run(run_number, chain_index, key, w0, data, center, chol)``: one chain, init + warmup + draws,
-    reporting its progress to its run's channel."""
-    dense, target, depth, warmup, draws = settings
-
-    def chain(run, index, key, w0, data, center, chol):
-        def potential(w):
-            return program.potential(center + chol @ w, data)
-
-        init_kernel, sample_kernel = hmc(potential_fn=potential, algo="NUTS")
-        state = init_kernel(
-            w0,
-            num_warmup=warmup,
-            step_size=0.5,
-            dense_mass=dense,
-            target_accept_prob=target,
-            max_tree_depth=depth,
-            rng_key=key,
-        )
-
-        def tick(i):
-            jax.lax.cond(i % _EVERY == _EVERY - 1, lambda: jax.debug.callback(report, run, index, i), lambda: None)
-
-        def warm(s, i):
-            tick(i)
-            return sample_kernel(s), None
-
-        def draw(s, i):
-            tick(i + warmup)
-            s = sample_kernel(s)
-            return s, (center + chol @ s.z, s.diverging, s.num_steps, s.accept_prob, s.energy, s.adapt_state.step_size)
-
-        state, _ = jax.lax.scan(warm, state, jnp.arange(warmup))
-        _, out = jax.lax.scan(draw, state, jnp.arange(draws))
-        return out
-
-    return jax.jit(chain)
 
 
 @computes
@@ -172,9 +129,11 @@ def _run_many(run_number, program, datas, starts, covs, settings, seeds, done) -
 def _chains(run_number, program, datas, starts, covs, settings, seeds, done) -> list[NutsDraws]:
     """One attempt: every (dataset, chain) pair on the chains' thread pool, one compiled chain program."""
     n = settings.chains
-    run = _compiled(
-        program, (settings.dense_mass, settings.target_accept, settings.max_tree_depth, settings.warmup, settings.draws)
+    run = chain_program(
+        program.potential,
+        Chain(settings.warmup, settings.draws, "windowed", settings.dense_mass, settings.max_tree_depth),
     )
+    target = np.float64(settings.target_accept)
     jobs: list[tuple] = []
     for data, start, cov, seed in zip(datas, starts, covs, seeds, strict=True):
         k_jit, k_chains = jax.random.split(jax.random.PRNGKey(seed))
@@ -183,7 +142,10 @@ def _chains(run_number, program, datas, starts, covs, settings, seeds, done) -> 
         chol = jnp.asarray(covariance_factor(np.asarray(cov)))
         center = jnp.asarray(start)
         first = len(jobs)
-        jobs += [(run_number, first + c, keys[c], 0.5 * jitter[c], data, center, chol) for c in range(n)]
+        # with the Laplace covariance as the metric, the posterior is about unit scale: a first step of 0.5
+        jobs += [
+            (run_number, first + c, keys[c], 0.5 * jitter[c], 0.5, None, target, data, center, chol) for c in range(n)
+        ]
 
     finished, lock = [0] * len(datas), threading.Lock()
 
@@ -200,7 +162,10 @@ def _chains(run_number, program, datas, starts, covs, settings, seeds, done) -> 
 
     def stacked(i: int) -> NutsDraws:  # dataset i's chains: (chain, draw, ...) of each output
         per = chains[i * n : (i + 1) * n]
-        z, diverging, steps, accept, energy, step = (np.stack([np.asarray(c[k]) for c in per]) for k in range(6))
+        z, diverging, steps, accept, energy, step = (
+            np.stack([np.asarray(getattr(c, k)) for c in per])
+            for k in ("x", "diverging", "num_steps", "accept_prob", "energy", "step_size")
+        )
         return NutsDraws(z, diverging, steps, accept, energy, step)
 
     return [stacked(i) for i in range(len(datas))]

@@ -28,7 +28,7 @@ from bayescal.fleet.model import (
 )
 from bayescal.fleet.spec import FleetSpec
 from bayescal.fleet.units import fleet_from_frame
-from bayescal.inference.chains import Phased
+from bayescal.inference.phases import Phased
 from bayescal.model.spec import InferenceSpec
 from bayescal.validation.fleet import SMALL_FLEET, FleetDesign, simulate_fleet
 from tests.conftest import MODELS

@@ -1,26 +1,30 @@
 """The NUTS rerun policy after divergent transitions, with the sampler replaced by a stand-in
 whose divergences depend only on the target acceptance (so the rule, not a posterior, is tested)."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from bayescal.inference import chains, nuts
+from bayescal.inference.transitions import Transitions
 from bayescal.model.spec import InferenceSpec
 
 DRAWS, DIM = 1000, 2
 
 
 def _stand_in(left_at_retry: float):
-    """``_compiled`` whose chains diverge in 6 % of draws at 0.8, ``left_at_retry`` at 0.95, none at 0.99."""
+    """``chain_program`` whose chains diverge in 6 % of draws at 0.8, ``left_at_retry`` at 0.95, none at 0.99."""
     fraction = {0.8: 0.06, 0.95: left_at_retry, 0.99: 0.0}
 
-    def compiled(program, settings):
-        _, target, _, _, draws = settings
+    def compiled(potential, chain):
+        draws = chain.draws
 
-        def run(run_number, index, key, w0, data, center, chol):
-            diverging = np.arange(draws) < round(fraction[target] * draws)
+        def run(run_number, index, key, w0, step, imm, target, data, center, chol):
+            diverging = np.arange(draws) < round(fraction[float(target)] * draws)
             zeros = np.zeros(draws)
-            return np.zeros((draws, DIM)), diverging, zeros + 3, zeros + target, zeros, zeros + 0.1
+            x = np.zeros((draws, DIM))
+            return Transitions(x[-1], 0.1, 0, 0, x, diverging, zeros + 3, zeros + target, zeros, zeros + 0.1)
 
         return run
 
@@ -36,9 +40,10 @@ def _stand_in(left_at_retry: float):
     ],
 )
 def test_a_last_rerun_only_for_a_few_divergences(monkeypatch, left, final_target, final_divergences):
-    monkeypatch.setattr(nuts, "_compiled", _stand_in(left))
+    monkeypatch.setattr(nuts, "chain_program", _stand_in(left))
     settings = InferenceSpec(chains=4, draws=DRAWS, warmup=10, target_accept=0.8, retry_target_accept=0.95)
-    (out,) = nuts._run_many(1, None, [None], [np.zeros(DIM)], [np.eye(DIM)], settings, [0], None)
+    program = SimpleNamespace(potential=None)
+    (out,) = nuts._run_many(1, program, [None], [np.zeros(DIM)], [np.eye(DIM)], settings, [0], None)
     assert out.first_divergences == 4 * 60  # the first run's count is what the verdict reports as retried
     assert out.rerun_at == pytest.approx(final_target)
     assert int(out.diverging.sum()) == final_divergences
