@@ -20,7 +20,7 @@ import numpy as np
 
 from bayescal import load_spec
 from bayescal._config import enable_numerics
-from bayescal.fleet.model import fleet_data
+from bayescal.fleet.data import fleet_data
 from bayescal.fleet.sampling import _objective
 from bayescal.fleet.stage1 import fit_units
 from bayescal.fleet.units import fleet_from_frame

@@ -5,7 +5,7 @@ bayescal.validation.fleet).  In one run, on the same data:
 
 - stage one: the 60 units fitted separately with ``fit_many`` (Laplace), cold and warm;
 - stage two: NUTS on the hierarchy's scales with every other quantity integrated out
-  (:func:`bayescal.fleet.model.log_marginal`), cold (compiling) and warm, with its
+  (:func:`bayescal.fleet.marginal.log_marginal`), cold (compiling) and warm, with its
   divergences, R-hat and ESS;
 - the warmup's baseline: the same potential sampled by numpyro's own adaptation (step size
   and diagonal mass matrix in windows, 300 warmup + 600 draws from starts about scales of
@@ -30,8 +30,9 @@ import pandas as pd
 from bayescal import load_spec
 from bayescal._config import enable_numerics
 from bayescal.fleet import fit_fleet
+from bayescal.fleet.data import fleet_data
 from bayescal.fleet.excess import excess_of, weighted
-from bayescal.fleet.model import _integrated, block_scales, fleet_data, integrated_value
+from bayescal.fleet.marginal import _integrated, block_scales, integrated_value
 from bayescal.fleet.sampling import THREADS, _convergence, _potential, _unpack
 from bayescal.fleet.stage1 import fit_units
 from bayescal.fleet.units import fleet_from_frame

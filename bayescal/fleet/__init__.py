@@ -1,7 +1,7 @@
 """Fleets of cameras of one type, calibrated over campaigns: a two-stage hierarchy.
 
 units (the table split per camera and campaign) -> stage1 (each unit alone, its likelihood
-as a Gaussian) -> model, sampling (the hierarchy by NUTS) -> posterior (predictions,
+as a Gaussian) -> plan, data, marginal, conditional, sampling (the hierarchy by NUTS) -> posterior (predictions,
 drift, recalibration, per-camera calibrations) -> report.  docs/architecture.md, section 8.
 """
 

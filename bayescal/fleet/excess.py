@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from bayescal.fleet.model import Plan
+    from bayescal.fleet.plan import Plan
 
 __all__ = [
     "channel_inflation",

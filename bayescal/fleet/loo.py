@@ -23,8 +23,10 @@ from functools import lru_cache
 
 import numpy as np
 
+from bayescal.fleet.data import design_of, pieces
 from bayescal.fleet.excess import factors, kind_blocks, log_det_t, weighted
-from bayescal.fleet.model import FleetData, Plan, design_of, factorise, pieces, solve_chol, solve_lower
+from bayescal.fleet.marginal import factorise, solve_chol, solve_lower
+from bayescal.fleet.plan import FleetData, Plan
 
 __all__ = ["loo_pieces", "loo_log_predictive", "loo_predictive"]
 

@@ -1,9 +1,9 @@
 """Sampling the fleet hierarchy: NUTS on the scales, exact Gaussian draws of the rest.
 
 NUTS samples only the hierarchy's scales on their marginal likelihood
-(:func:`.model.log_marginal`); each draw of the scales is then completed by one
+(:func:`.marginal.log_marginal`); each draw of the scales is then completed by one
 draw of every other quantity from its Gaussian conditional.  The programs are
-compiled once per model structure (:class:`.model.Plan` and array shapes) with the
+compiled once per model structure (:class:`.plan.Plan` and array shapes) with the
 data as arguments, and chains run vectorised.
 """
 
@@ -16,16 +16,10 @@ from typing import Any
 import numpy as np
 
 from bayescal._config import computes
+from bayescal.fleet.conditional import conditional_draws, draw_scales, latent_draws, standard_normals
 from bayescal.fleet.excess import excess_of, log_det_t, scale_directions
-from bayescal.fleet.model import (
-    FleetData,
-    Plan,
-    conditional_draws,
-    draw_scales,
-    latent_draws,
-    log_marginal,
-    standard_normals,
-)
+from bayescal.fleet.marginal import log_marginal
+from bayescal.fleet.plan import FleetData, Plan
 from bayescal.fleet.spec import FleetSpec
 from bayescal.inference.chains import attempt_seed, map_chains, with_retries
 from bayescal.inference.laplace import find_map
@@ -52,7 +46,7 @@ class FleetDraws:
 
 def scale_priors(plan: Plan) -> dict[str, float | np.ndarray]:
     """The half-normal prior scale of every sampled scale of stage two (of ``kappa - 1`` for the
-    excess: one per kind and direction, :meth:`~.model.Plan.excess_priors`)."""
+    excess: one per kind and direction, :meth:`~.plan.Plan.excess_priors`)."""
     return {
         "sigma_camera": plan.spread_prior,
         "sigma_channel": plan.spread_prior,
@@ -164,7 +158,7 @@ def _latent_program(plan: Plan):
 
 
 def _latents(plan: Plan, hyper: dict, args: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`.model.conditional_draws` (the same normal variates, so the same draws) by the compiled
+    """:func:`.conditional.conditional_draws` (the same normal variates, so the same draws) by the compiled
     program, in chunks of :data:`DRAW_CHUNK` draws (the last one padded), one chunk per core at a time."""
     import jax
 

@@ -39,7 +39,7 @@ class FleetSpec:
 
     ``excess``: each unit's stage-one covariance is scaled, per quantity kind, by a fitted
     ``kappa = 1 + HalfNormal(excess_prior)`` where the channels move together and by another where
-    they differ (``T Sigma T``, :mod:`bayescal.fleet.model`): when the channel model does not
+    they differ (``T Sigma T``, :mod:`bayescal.fleet.plan`): when the channel model does not
     describe a camera exactly, a unit's own intervals are too narrow, and the scatter of the units
     about the hierarchy says by how much and in which direction (``sqrt(kappa)`` is reported, and a
     widening of a unit's own interval of a channel by over 3x fails the fit).  The two directions

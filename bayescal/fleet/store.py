@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from bayescal.errors import PosteriorError
-from bayescal.fleet.model import FleetData, Plan
+from bayescal.fleet.plan import FleetData, Plan
 from bayescal.fleet.sampling import FleetDraws
 from bayescal.model.spec import ModelSpec
 

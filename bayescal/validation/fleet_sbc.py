@@ -20,8 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from bayescal.fleet.data import design_of, with_units
 from bayescal.fleet.excess import excess_of, scale_directions
-from bayescal.fleet.model import FleetData, Plan, block_scales, design_of, with_units
+from bayescal.fleet.marginal import block_scales
+from bayescal.fleet.plan import FleetData, Plan
 from bayescal.fleet.sampling import sample_fleet, scale_priors
 from bayescal.fleet.spec import FleetSpec
 from bayescal.model.spec import InferenceSpec

@@ -15,17 +15,11 @@ import pytest
 
 from bayescal import load_spec
 from bayescal.errors import SpecError, TableError
+from bayescal.fleet.conditional import conditional_draws
+from bayescal.fleet.data import design_of, fleet_data
 from bayescal.fleet.excess import weighted
-from bayescal.fleet.model import (
-    Plan,
-    _integrated,
-    block_scales,
-    conditional_draws,
-    design_of,
-    fleet_data,
-    integrated_value,
-    log_marginal,
-)
+from bayescal.fleet.marginal import _integrated, block_scales, integrated_value, log_marginal
+from bayescal.fleet.plan import Plan
 from bayescal.fleet.spec import FleetSpec
 from bayescal.fleet.units import fleet_from_frame
 from bayescal.inference.phases import Phased
@@ -162,7 +156,7 @@ def test_channel_inflation_in_closed_form():
     1 apart, ``T^2 = 4 P_1 + P_2`` has diagonal 4/3 + 2/3 = 2; with channels fully correlated
     (``Sigma = 1 1'``) only the common direction counts: sqrt(4) = 2."""
     from bayescal.fleet.excess import channel_inflation
-    from bayescal.fleet.model import Plan
+    from bayescal.fleet.plan import Plan
 
     plan = Plan(2, 3, 2, 2, 1, 0, 0, False, False, "partial", 1.0, 0.5, 0.3)
     cov = np.zeros((2, 6, 6))
@@ -271,8 +265,8 @@ def test_walk_and_jitter_are_sampled_as_their_total_and_ratio(small_fleet, float
 def test_leave_one_unit_out_matches_the_dense_gaussian_conditional(small_fleet, float64):
     """``log p(y_u | y_-u, h)`` in closed form (numpy and compiled) against the conditional of the
     dense joint Gaussian of every unit's values, per kind."""
+    from bayescal.fleet.conditional import draw_scales
     from bayescal.fleet.loo import loo_log_predictive, loo_pieces, loo_predictive
-    from bayescal.fleet.model import draw_scales
 
     fleet = fleet_from_frame(_frame(small_fleet), source="small")
     data, plan = fleet_data(_Fits(fleet, 2, np.random.default_rng(2)), FleetSpec(), 0.03)
@@ -344,7 +338,7 @@ def test_chains_continue_until_the_ess_target(small_fleet):
     """Below the ESS target every chain continues from its adapted state, ``extend`` times at most,
     and the compiled conditional draws equal numpy's for the same normal variates."""
     from bayescal._config import numerics
-    from bayescal.fleet.model import draw_scales, latent_draws, standard_normals
+    from bayescal.fleet.conditional import draw_scales, latent_draws, standard_normals
     from bayescal.fleet.sampling import _latents, sample_fleet
 
     fleet = fleet_from_frame(_frame(small_fleet), source="small")
@@ -668,7 +662,7 @@ def test_select_compares_poolings_by_loo(tmp_path, capsys):
 def test_refitting_the_same_reports_rebuilds_the_same_blocks(small_fleet):
     """``with_units`` (what simulation-based calibration refits) rebuilds every data block of the
     likelihood from the units' reports: the fleet's own reports give back the fleet's blocks."""
-    from bayescal.fleet.model import with_units
+    from bayescal.fleet.data import with_units
 
     fleet = fleet_from_frame(_frame(small_fleet), source="small")
     data, plan = fleet_data(_Fits(fleet, 3, np.random.default_rng(5)), FleetSpec(), 0.03)
@@ -757,7 +751,8 @@ def test_a_filtered_frame_reads_as_its_rows(small_fleet):
 def test_the_named_latent_slots_tile_the_vectors_and_the_scales_follow_them():
     """Every global and camera slot is named once (no overlap, no gap), and the slot scales come in
     the camera slots' order, so design, scales, draws and SBC read one layout."""
-    from bayescal.fleet.model import Plan, block_scales
+    from bayescal.fleet.marginal import block_scales
+    from bayescal.fleet.plan import Plan
 
     plan = Plan(
         n_kinds=3, n_channels=3, n_cameras=4, n_units=8, n_spheres=2, n_walk=3, max_walk=2, drift=True,
