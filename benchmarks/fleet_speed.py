@@ -29,11 +29,12 @@ import pandas as pd
 
 from bayescal import load_spec
 from bayescal._config import enable_numerics
+from bayescal._parallel import cores
 from bayescal.fleet import fit_fleet
 from bayescal.fleet.data import fleet_data
 from bayescal.fleet.excess import excess_of, weighted
 from bayescal.fleet.marginal import _integrated, block_scales, integrated_value
-from bayescal.fleet.sampling import THREADS, _convergence, _potential, _unpack
+from bayescal.fleet.sampling import _convergence, _potential, _unpack
 from bayescal.fleet.stage1 import fit_units
 from bayescal.fleet.units import fleet_from_frame
 from bayescal.validation.fleet import FleetDesign, simulate_fleet
@@ -106,7 +107,7 @@ def _window_adapted(data, plan, seed: int, chains: int = 4, warmup: int = 300, d
     keys = jax.random.split(jax.random.PRNGKey(seed), chains)
     jax.block_until_ready(run(keys[0], u0[0]))  # compiled before the clock starts
     t = time.perf_counter()
-    with ThreadPoolExecutor(THREADS) as pool:
+    with ThreadPoolExecutor(cores()) as pool:
         outs = list(pool.map(lambda c: jax.block_until_ready(run(keys[c], u0[c])), range(chains)))
     seconds = time.perf_counter() - t
     z = np.stack([np.asarray(o[0])[warmup:] for o in outs])

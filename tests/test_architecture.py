@@ -3,6 +3,7 @@ effect declares what it samples and reports (the layers themselves are import-li
 in CI: ``lint-imports``)."""
 
 import ast
+import sys
 from pathlib import Path
 
 import pytest
@@ -157,3 +158,20 @@ def test_every_package_is_in_the_wheel():
     listed = set(tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
     found = {".".join(p.parent.relative_to(root).parts) for p in PACKAGE.rglob("__init__.py")}
     assert found <= listed, sorted(found - listed)
+
+
+def test_every_benchmark_imports(monkeypatch):
+    """A benchmark names the package's internals it measures; a restructuring that moves one must not
+    leave the script broken until someone runs it (importing runs nothing: each runs under ``__main__``)."""
+    import importlib.util
+
+    folder = Path(__file__).resolve().parents[1] / "benchmarks"
+    monkeypatch.syspath_prepend(str(folder))  # a script run as one finds its siblings there
+    scripts = sorted(folder.glob("*.py"))
+    assert len(scripts) > 10
+    for path in scripts:
+        spec = importlib.util.spec_from_file_location(f"_benchmark_{path.stem}", path)
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        monkeypatch.setitem(sys.modules, spec.name, module)  # a dataclass looks its module up there
+        spec.loader.exec_module(module)
