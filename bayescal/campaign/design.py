@@ -478,7 +478,7 @@ def _telling_apart(grid: Grid, after, seed: int, say: Callable[[str], None]) -> 
     from bayescal.posterior.calibration import Calibration
 
     folder = after if isinstance(after, FitFolder) else FitFolder.at(after, "`bayescal design --after`")
-    doubt = (folder.summary.get("diagnostics") or {}).get("structure")
+    doubt = folder.summary.diagnostics.get("structure")
     if not doubt:
         return None
     import tomllib

@@ -33,6 +33,7 @@ from bayescal.inference.laplace import laplace
 from bayescal.inference.program import LOGLIK, program_of
 from bayescal.io.fit_folder import POSTERIOR, SUMMARY, TABLE
 from bayescal.io.outputs import staged_directory, write_json_atomic, write_netcdf
+from bayescal.io.summary import FitSummary
 
 __all__ = ["BandFit", "FilmFit", "fit_film", "fit_film_table", "REPORTED"]
 
@@ -109,18 +110,19 @@ class FilmFit:
         return pd.DataFrame(rows).set_index("parameter")
 
     def to_dict(self) -> dict:
-        """JSON-ready summary: status, diagnostics per band, the curve and scale of each band."""
-        return {
-            "model_kind": "film",
-            "status": "ok" if self.ok else "FAILED",
-            "backend": self.backend,
-            "seed": self.seed,
-            "bayescal_version": __version__,
-            "model": {"name": self.spec.name, "bands": list(self.bands), "toe_shoulder": self.spec.toe_shoulder},
-            "diagnostics": self.diagnostics.to_dict(),
-            "timings_s": self.timings,
-            "parameters": [{"parameter": k, **v} for k, v in self.summary.to_dict("index").items()],
-        }
+        """JSON-ready summary (``summary.json``, :class:`~bayescal.io.summary.FitSummary`): status,
+        diagnostics per band, the curve and scale of each band."""
+        return FitSummary(
+            model_kind="film",
+            status="ok" if self.ok else "FAILED",
+            backend=self.backend,
+            seed=self.seed,
+            bayescal_version=__version__,
+            model={"name": self.spec.name, "bands": list(self.bands), "toe_shoulder": self.spec.toe_shoulder},
+            diagnostics=self.diagnostics.to_dict(),
+            timings_s=self.timings,
+            parameters=[{"parameter": k, **v} for k, v in self.summary.to_dict("index").items()],
+        ).to_json()
 
     def summary_text(self) -> str:
         """Readable summary for the terminal: each band's curve with 95 % intervals."""

@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bayescal.errors import PosteriorError
 from bayescal.film.posterior import FilmCalibration
 from bayescal.io.fit_folder import SUMMARY, FitFolder
 from bayescal.io.outputs import write_json_atomic, write_text_atomic
@@ -30,38 +29,34 @@ def write_film_report(
     folder = fit_dir if isinstance(fit_dir, FitFolder) else FitFolder.at(fit_dir, "`bayescal report`", (SUMMARY,))
     root = folder.root if folder.root is not None else folder.posterior_path.parent
     out = Path(out) if out is not None else root / "report.html"
-    summary = folder.summary
-    try:
-        summary["diagnostics"]["verdict"], summary["parameters"]  # noqa: B018 - the keys the report reads
-    except (KeyError, TypeError) as exc:
-        raise PosteriorError(f"{folder.file(SUMMARY)} is not a film fit's summary ({exc})") from None
+    summary = folder.summary  # checked: the keys below are there
     tree = folder.posterior
     cal = FilmCalibration.load(folder.posterior_path, tree)
     frame = folder.measurements
-    params = pd.DataFrame(summary["parameters"])
+    params = pd.DataFrame(summary.parameters)
     examples = _examples(cal, frame, seed)
     data = {
-        "status": summary["status"],
-        "verdict": summary["diagnostics"]["verdict"],
-        "backend": summary["backend"],
-        "seed": summary["seed"],
-        "parameters": summary["parameters"],
+        "status": summary.status,
+        "verdict": summary.diagnostics["verdict"],
+        "backend": summary.backend,
+        "seed": summary.seed,
+        "parameters": summary.parameters,
         "inversion": examples.to_dict("records"),
     }
     write_json_atomic(out.with_suffix(".json"), data)
-    d = summary["diagnostics"]
-    body = f"""<h1>Film calibration report: {escape(summary["model"]["name"])}</h1>
-<p>Backend <b>{escape(summary["backend"])}</b>, seed {summary["seed"]}; bands {escape(", ".join(cal.channels))}.
+    d = summary.diagnostics
+    body = f"""<h1>Film calibration report: {escape(summary.model["name"])}</h1>
+<p>Backend <b>{escape(summary.backend)}</b>, seed {summary.seed}; bands {escape(", ".join(cal.channels))}.
 Density against the band radiance of each wedge step (seed 003 eq. 10), with the characteristic curve
 D = gamma lg L* + D0 (eq. 5-6): posterior median and 95 % band.</p>
-{verdict(summary["status"] == "ok", d.get("problems", []), "Diagnostics passed for every band.")}
+{verdict(summary.status == "ok", d.get("problems", []), "Diagnostics passed for every band.")}
 <h2>Characteristic curves</h2>
 {image(_fig_curves(cal, frame), "characteristic curves")}
 <h2>Posterior per band</h2>
 {table(params)}
 <h2>Inversion examples (band radiance, {escape(cal.unit)}; 95 % intervals)</h2>
 {table(examples)}"""
-    write_text_atomic(out, page(summary["model"]["name"], body))
+    write_text_atomic(out, page(summary.model["name"], body))
     return out
 
 

@@ -32,12 +32,26 @@ from bayescal.inference.diagnostics import Diagnostics
 from bayescal.inference.program import LOGLIK
 from bayescal.io.fit_folder import LSQ, POSTERIOR, SUMMARY, TABLE
 from bayescal.io.outputs import staged_directory, write_json_atomic, write_netcdf
+from bayescal.io.summary import CALIBRATION, FitSummary
 from bayescal.io.table import MeasurementTable
 from bayescal.model.assemble import CalibrationModel
 from bayescal.model.components import reported_dims, site_dims
 from bayescal.model.physical import dims, physical_draws
 
-__all__ = ["Fit", "finish", "row_summaries", "misfit_of", "fail", "REPORTED", "SAMPLED", "OUTLIER_Z"]
+__all__ = [
+    "Fit",
+    "coefficients_at_reference",
+    "finish",
+    "parameter_records",
+    "parameter_table",
+    "records",
+    "row_summaries",
+    "misfit_of",
+    "fail",
+    "REPORTED",
+    "SAMPLED",
+    "OUTLIER_Z",
+]
 
 #: quantities in the summary, in order: every component's reported quantities
 REPORTED = tuple(reported_dims())
@@ -92,56 +106,13 @@ class Fit:
         """Per reported quantity: mean, sd, 2.5/50/97.5 % quantiles, R-hat, bulk/tail ESS."""
         if self.posterior is None:
             return pd.DataFrame()
-        post = self.posterior["posterior"].to_dataset()
-        names = [v for v in REPORTED if v in post]
-        with warnings.catch_warnings():  # R-hat of the reference setting's factor (a constant 1) is NaN, by design
-            warnings.simplefilter("ignore", RuntimeWarning)
-            import arviz_stats
-
-            table = arviz_stats.summary(post[names], ci_prob=0.95, ci_kind="eti", round_to="none")
-        median = _flat_stat(post[names], lambda a: np.median(a, axis=(0, 1)))
-        table.insert(2, "q2.5", table.pop("eti95_lb"))
-        table.insert(3, "q50", median.reindex(table.index))
-        table.insert(4, "q97.5", table.pop("eti95_ub"))
-        return table[["mean", "sd", "q2.5", "q50", "q97.5", "r_hat", "ess_bulk", "ess_tail"]]
+        return parameter_table(self.posterior["posterior"].to_dataset())
 
     @cached_property
     def comparison(self) -> pd.DataFrame:
         """The papers' coefficients at the reference setting: least squares beside the posterior."""
-        ref = self.model.spec.reference
-        order = self.model.spec.response.order
-        rows = []
-        lsq = self.lsq
-        at_ref = (
-            lsq[
-                np.isclose(lsq.get("exposure_s", np.nan), ref.exposure_s)
-                & np.isclose(lsq.get("gain", np.nan), ref.gain)
-                & np.isclose(lsq.get("tdi_stages", np.nan), ref.tdi_stages)
-                & (lsq.get("order", -1) == order)
-            ]
-            if len(lsq)
-            else lsq
-        )
-        post = None if self.posterior is None else self.posterior["posterior"]
-        for ci, channel in enumerate(self.model.layout.channels):
-            lrow = at_ref[at_ref["channel"] == channel] if len(at_ref) else at_ref
-            for k in range(order + 1):
-                row: dict[str, object] = {"channel": channel, "coefficient": f"A{k}"}
-                if len(lrow):
-                    r = lrow.iloc[0]
-                    row.update(lsq=r[f"A{k}"], lsq_lo=r[f"A{k}_lo"], lsq_hi=r[f"A{k}_hi"], lsq_r2=r["r2"])
-                if post is not None:
-                    for kind in ("rel", "abs"):
-                        a = np.asarray(post[f"A_{kind}"])[..., ci, k].ravel()
-                        row.update(
-                            {
-                                f"bayes_{kind}": float(a.mean()),
-                                f"bayes_{kind}_lo": float(np.quantile(a, 0.025)),
-                                f"bayes_{kind}_hi": float(np.quantile(a, 0.975)),
-                            }
-                        )
-                rows.append(row)
-        return pd.DataFrame(rows)
+        post = None if self.posterior is None else self.posterior["posterior"].to_dataset()
+        return coefficients_at_reference(post, self.lsq, self.model.spec, self.model.layout.channels)
 
     def draws(self, name: str) -> np.ndarray:
         """Draws of one posterior variable, flattened over chains: shape ``(n_draws, ...)``."""
@@ -151,26 +122,31 @@ class Fit:
         return arr.reshape((-1,) + arr.shape[2:])
 
     def to_dict(self) -> dict:
-        """JSON-ready summary: status, diagnostics, model, parameters and the LSQ baseline."""
+        """JSON-ready summary (``summary.json``, :class:`~bayescal.io.summary.FitSummary`): status,
+        diagnostics, model, parameters and the LSQ baseline."""
+        return self.fit_summary().to_json()
+
+    def fit_summary(self) -> FitSummary:
+        """The fit's summary, typed (:class:`~bayescal.io.summary.FitSummary`)."""
         spec, layout = self.model.spec, self.model.layout
-        return {
-            "model_kind": "calibration",
-            "status": "ok" if self.ok else "FAILED",
-            "backend": self.backend,
-            "seed": self.seed,
-            "bayescal_version": __version__,
-            "model": {
+        return FitSummary(
+            model_kind=CALIBRATION,
+            status="ok" if self.ok else "FAILED",
+            backend=self.backend,
+            seed=self.seed,
+            bayescal_version=__version__,
+            model={
                 "name": spec.name,
                 "components": self.model.parts.describe(),
                 "reference": spec.to_dict()["reference"],
             },
-            "stimulus_unit": layout.unit,
-            "diagnostics": self.diagnostics.to_dict(),
-            "timings_s": self.timings,
-            "parameters": _records(self.summary.reset_index(names="parameter")) if len(self.summary) else [],
-            "comparison_at_reference": _records(self.comparison),
-            "lsq": _records(self.lsq),
-        }
+            stimulus_unit=layout.unit,
+            diagnostics=self.diagnostics.to_dict(),
+            timings_s=self.timings,
+            parameters=parameter_records(self.summary),
+            comparison_at_reference=records(self.comparison),
+            lsq=records(self.lsq),
+        )
 
     def summary_text(self) -> str:
         """Readable summary: model, verdict, coefficients with 95 % intervals beside least squares."""
@@ -419,6 +395,58 @@ def _table_dataset(table: MeasurementTable) -> xr.Dataset:
     return ds
 
 
+def parameter_table(post: xr.Dataset) -> pd.DataFrame:
+    """Per reported quantity of a posterior: mean, sd, 2.5/50/97.5 % quantiles, R-hat, bulk/tail ESS."""
+    names = [v for v in REPORTED if v in post]
+    with warnings.catch_warnings():  # R-hat of the reference setting's factor (a constant 1) is NaN, by design
+        warnings.simplefilter("ignore", RuntimeWarning)
+        import arviz_stats
+
+        table = arviz_stats.summary(post[names], ci_prob=0.95, ci_kind="eti", round_to="none")
+    median = _flat_stat(post[names], lambda a: np.median(a, axis=(0, 1)))
+    table.insert(2, "q2.5", table.pop("eti95_lb"))
+    table.insert(3, "q50", median.reindex(table.index))
+    table.insert(4, "q97.5", table.pop("eti95_ub"))
+    return table[["mean", "sd", "q2.5", "q50", "q97.5", "r_hat", "ess_bulk", "ess_tail"]]
+
+
+def coefficients_at_reference(post: xr.Dataset | None, lsq: pd.DataFrame, spec, channels) -> pd.DataFrame:
+    """The papers' coefficients at ``spec``'s reference setting per channel: the least-squares fit there
+    (``lsq``) beside the posterior's ``A_rel`` and ``A_abs`` (mean and 95 % interval; none without one)."""
+    ref = spec.reference
+    order = spec.response.order
+    rows = []
+    at_ref = (
+        lsq[
+            np.isclose(lsq.get("exposure_s", np.nan), ref.exposure_s)
+            & np.isclose(lsq.get("gain", np.nan), ref.gain)
+            & np.isclose(lsq.get("tdi_stages", np.nan), ref.tdi_stages)
+            & (lsq.get("order", -1) == order)
+        ]
+        if len(lsq)
+        else lsq
+    )
+    for ci, channel in enumerate(channels):
+        lrow = at_ref[at_ref["channel"] == channel] if len(at_ref) else at_ref
+        for k in range(order + 1):
+            row: dict[str, object] = {"channel": channel, "coefficient": f"A{k}"}
+            if len(lrow):
+                r = lrow.iloc[0]
+                row.update(lsq=r[f"A{k}"], lsq_lo=r[f"A{k}_lo"], lsq_hi=r[f"A{k}_hi"], lsq_r2=r["r2"])
+            if post is not None:
+                for kind in ("rel", "abs"):
+                    a = np.asarray(post[f"A_{kind}"])[..., ci, k].ravel()
+                    row.update(
+                        {
+                            f"bayes_{kind}": float(a.mean()),
+                            f"bayes_{kind}_lo": float(np.quantile(a, 0.025)),
+                            f"bayes_{kind}_hi": float(np.quantile(a, 0.975)),
+                        }
+                    )
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def _flat_stat(ds: xr.Dataset, fn) -> pd.Series:
     out = {}
     for name, da in ds.data_vars.items():
@@ -434,8 +462,14 @@ def _flat_stat(ds: xr.Dataset, fn) -> pd.Series:
     return pd.Series(out)
 
 
-def _records(df: pd.DataFrame) -> list[dict]:
+def records(df: pd.DataFrame) -> list[dict]:
+    """A table as JSON-ready rows (numpy scalars as Python numbers)."""
     return [{k: (v.item() if hasattr(v, "item") else v) for k, v in row.items()} for row in df.to_dict("records")]
+
+
+def parameter_records(table: pd.DataFrame) -> list[dict]:
+    """:func:`parameter_table`'s rows for ``summary.json``, each with its ``parameter`` name."""
+    return records(table.reset_index(names="parameter")) if len(table) else []
 
 
 def f5(x: float) -> str:

@@ -4,7 +4,7 @@ of its files at most once.
 ``bayescal fit --out DIR`` (and a fleet's per-camera export) writes::
 
     DIR/posterior.nc     the posterior draws, the spec (``spec_toml``) and the measurements (a DataTree)
-    DIR/summary.json     the verdict, the diagnostics and the summaries
+    DIR/summary.json     the verdict, the diagnostics and the summaries (:class:`~bayescal.io.summary.FitSummary`)
     DIR/summary.csv      the parameters' summaries as a table
     DIR/lsq.csv          the least-squares baseline
     DIR/.bayescal-output the run's record of its files (:mod:`bayescal.io.outputs`)
@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from bayescal.errors import PosteriorError
+from bayescal.io.summary import FitSummary
 
 __all__ = ["FitFolder", "LSQ", "POSTERIOR", "SUMMARY", "TABLE"]
 
@@ -86,15 +87,17 @@ class FitFolder:
         return self.root / name
 
     @cached_property
-    def summary(self) -> dict:
-        """``summary.json``, parsed on first use; a clear error when it is missing or not a bayescal summary."""
+    def summary(self) -> FitSummary:
+        """``summary.json``, parsed and checked on first use (:meth:`FitSummary.from_json`); a clear error
+        when it is missing or not a bayescal summary."""
         path = self.file(SUMMARY)
         try:
-            return json.loads(path.read_text())
+            data = json.loads(path.read_text())
         except (OSError, UnicodeError, ValueError) as exc:
             raise PosteriorError(
                 f"{path} is missing or not a bayescal summary ({type(exc).__name__}: {exc}); re-run `bayescal fit`"
             ) from None
+        return FitSummary.from_json(data, path)
 
     @cached_property
     def measurements(self) -> Any:

@@ -15,12 +15,10 @@ from __future__ import annotations
 from types import ModuleType
 from typing import Any
 
+from bayescal.io.summary import CALIBRATION  # the camera model's kind (this package), a summary's default
 from bayescal.model import plugins
 
 __all__ = ["CALIBRATION", "kind_of", "get", "names"]
-
-#: the camera model's kind (this package), the default
-CALIBRATION = "calibration"
 
 
 def names() -> tuple[str, ...]:

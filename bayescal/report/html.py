@@ -27,10 +27,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bayescal.errors import PosteriorError
 from bayescal.inference import registry as backends
 from bayescal.io.fit_folder import POSTERIOR, SUMMARY, FitFolder
 from bayescal.io.outputs import atomic_path, write_json_atomic, write_text_atomic
+from bayescal.io.summary import FitSummary
 from bayescal.model import kinds
 from bayescal.model.components import Saturation
 from bayescal.model.setting import Setting
@@ -109,18 +109,9 @@ def write_report(
 def _write_report(fit_dir: Path, out: str | os.PathLike | None, seed: int, figures: bool) -> Path:
     out = Path(out) if out is not None else fit_dir / "report.html"
     folder = FitFolder.at(fit_dir, "`bayescal report`", needs=(SUMMARY, POSTERIOR))
-    try:
-        summary = folder.summary
-        kind = summary.get("model_kind", kinds.CALIBRATION)
-        if kind != kinds.CALIBRATION:  # another model kind reports itself (bayescal.model.kinds)
-            return kinds.get(str(kind)).write_report(folder, out, seed)
-        for key in ("status", "backend", "seed", "model", "stimulus_unit", "lsq"):  # the keys the report reads
-            summary[key]  # noqa: B018
-        summary["diagnostics"]["verdict"]  # noqa: B018
-    except (KeyError, TypeError, AttributeError) as exc:
-        raise PosteriorError(
-            f"{folder.file(SUMMARY)} is not a bayescal summary ({type(exc).__name__}: {exc}); re-run `bayescal fit`"
-        ) from None
+    summary = folder.summary  # checked: every key the report reads is there
+    if summary.model_kind != kinds.CALIBRATION:  # another model kind reports itself (bayescal.model.kinds)
+        return kinds.get(summary.model_kind).write_report(folder, out, seed)
     if figures:  # before any drawing: a file of the user's is never replaced
         from bayescal.io.outputs import check_output_file
 
@@ -128,7 +119,7 @@ def _write_report(fit_dir: Path, out: str | os.PathLike | None, seed: int, figur
     cal = Calibration.load(folder)  # the posterior opened once: the figures below read the same tree
     tree = folder.posterior
     frame = folder.measurements.rename(columns={cal.stimulus: "stimulus"})
-    lsq = pd.DataFrame(summary["lsq"])
+    lsq = pd.DataFrame(summary.lsq)
     coef = _coefficient_table(summary)
     lsq_ref = _lsq_at_reference(lsq, cal, summary)
     budget = uncertainty_budget(cal, seed=seed)
@@ -137,17 +128,17 @@ def _write_report(fit_dir: Path, out: str | os.PathLike | None, seed: int, figur
         "coefficients": _fig_coefficients(coef),
         "response": _fig_response(cal, frame, lsq),
         "residuals": _fig_residuals(cal, frame),
-        "misfit": _fig_misfit(summary["diagnostics"].get("misfit"), summary["diagnostics"].get("holdout")),
+        "misfit": _fig_misfit(summary.diagnostics.get("misfit"), summary.diagnostics.get("holdout")),
         "budget": _fig_budget(budget),
-    } | _fig_chains(tree, summary["backend"])
+    } | _fig_chains(tree, summary.backend)
     data = {
-        "status": summary["status"],
-        "verdict": summary["diagnostics"]["verdict"],
-        "backend": summary["backend"],
-        "seed": summary["seed"],
-        "model": summary["model"],
-        "stimulus_unit": summary["stimulus_unit"],
-        "diagnostics": summary["diagnostics"],
+        "status": summary.status,
+        "verdict": summary.diagnostics["verdict"],
+        "backend": summary.backend,
+        "seed": summary.seed,
+        "model": summary.model,
+        "stimulus_unit": summary.stimulus_unit,
+        "diagnostics": summary.diagnostics,
         "coefficients": coef.to_dict("records"),
         "lsq_at_reference": lsq_ref.to_dict("records"),
         "uncertainty_budget": budget.to_dict("records"),
@@ -166,10 +157,10 @@ def _write_report(fit_dir: Path, out: str | os.PathLike | None, seed: int, figur
 
 
 # ----------------------------------------------------------------- tables
-def _coefficient_table(summary: dict) -> pd.DataFrame:
-    params = {p["parameter"]: p for p in summary["parameters"]}
+def _coefficient_table(summary: FitSummary) -> pd.DataFrame:
+    params = {p["parameter"]: p for p in summary.parameters}
     rows = []
-    for r in summary["comparison_at_reference"]:
+    for r in summary.comparison_at_reference:
         name = f"A_abs[{r['channel']}, {r['coefficient'][1:]}]"
         p = params.get(name, {})
         rel = params.get(f"A_rel[{r['channel']}, {r['coefficient'][1:]}]", {})
@@ -191,7 +182,7 @@ def _coefficient_table(summary: dict) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _lsq_at_reference(lsq: pd.DataFrame, cal: Calibration, summary: dict) -> pd.DataFrame:
+def _lsq_at_reference(lsq: pd.DataFrame, cal: Calibration, summary: FitSummary) -> pd.DataFrame:
     if lsq.empty:
         return lsq
     ref = cal.reference
