@@ -83,7 +83,7 @@ class CalibratedRange:
         return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Calibration:
     """Posterior draws of a camera's calibration in physical units.
 
@@ -131,8 +131,8 @@ class Calibration:
     prnu_bound: float = 0.03
     #: the sphere's fitted level errors, level name -> per-draw error ``(S,)``: what each measured level delivered
     level_errors: dict[str, np.ndarray] = field(default_factory=dict, compare=False)
-    #: inversion tables computed from these draws (:mod:`bayescal.prediction.tables`); a cache, not data
-    tables: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    #: the fit folder it was read from (None: made in memory); where its inversion tables are kept
+    folder: FitFolder | None = field(default=None, repr=False)
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -173,13 +173,20 @@ class Calibration:
         channels = tuple(str(c) for c in np.asarray(post["channel"]))
         gains = tuple(float(g) for g in np.asarray(post["gain_setting"])) if "gain_setting" in post.coords else ()
         draws = {str(k): np.asarray(post[str(k)]) for k in post.data_vars}
-        return cls._from_draws(
-            spec, draws, channels, gains, frame, source=str(folder.posterior_path), levels=_levels(post)
-        )
+        source = str(folder.posterior_path)
+        return cls._from_draws(spec, draws, channels, gains, frame, source, _levels(post), folder)
 
     @classmethod
     def _from_draws(
-        cls, spec: ModelSpec, draws, channels, gains, frame, source: str, levels: tuple[str, ...] = ()
+        cls,
+        spec: ModelSpec,
+        draws,
+        channels,
+        gains,
+        frame,
+        source: str,
+        levels: tuple[str, ...] = (),
+        folder: FitFolder | None = None,
     ) -> Calibration:
         def flat(a):
             a = np.asarray(a, dtype=float)
@@ -216,6 +223,7 @@ class Calibration:
             noises=effect_terms(spec, draws, frame, NoiseEffect),
             prnu_bound=spec.saturation.prnu_bound,
             level_errors=_level_errors(draws, levels, flat),
+            folder=folder,
         )
 
     @classmethod

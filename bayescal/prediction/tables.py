@@ -32,7 +32,9 @@ import hashlib
 import json
 import os
 import tempfile
+import threading
 import warnings
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -106,8 +108,15 @@ class TableKey:
 _GROWN = "grown"  # the entry of a calibration's cache that lists the keys computed further since read
 
 
+#: each calibration's tables, {TableKey: records, _GROWN: {TableKey}}, kept while the calibration lives
+_TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_TABLES_LOCK = threading.Lock()
+
+
 def _store(cal: Calibration) -> dict:
-    return cal.tables  # the calibration's own cache: {TableKey: records, _GROWN: {TableKey}}
+    """The tables computed for ``cal`` in this process (a cache beside it, not part of it)."""
+    with _TABLES_LOCK:
+        return _TABLES.setdefault(cal, {})
 
 
 #: no values to compute: a table as far as it is known
@@ -238,9 +247,9 @@ def _posterior_file(cal: Calibration) -> tuple[Path, str] | None:
     """The posterior file the calibration was read from and its recorded SHA-256 (None: not a fit folder's)."""
     from bayescal.io.outputs import read_marker
 
-    path = Path(cal.source)
-    if not path.name or not path.is_file():
+    if cal.folder is None or cal.folder.root is None or not cal.folder.posterior_path.is_file():
         return None
+    path = cal.folder.posterior_path
     marker = read_marker(path.parent) or {}
     entry = marker.get("files", {}).get(path.name, {})
     return (path, entry["sha256"]) if "sha256" in entry else None
