@@ -55,7 +55,6 @@ complete -o filenames -F _bayescal bayescal
 
 
 def cmd_completion(args) -> int:
-    from bayescal.cli.parser import build
-
-    print(completion_script(build()), end="")
+    """Print the completion script of the command line ``args.parser`` (the parser that read ``args``)."""
+    print(completion_script(args.parser), end="")
     return 0

@@ -46,6 +46,7 @@ def build() -> argparse.ArgumentParser:
             help="print one JSON document on stdout for a script: the results, the exit status, the output "
             "folders and the JSON files written there (the text goes to stderr)",
         )
+    sub.choices["completion"].set_defaults(parser=p)  # the script completes this very command line
     return p
 
 

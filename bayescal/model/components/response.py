@@ -17,8 +17,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+import bayescal.model.components.rolloff as roll
 from bayescal.model.basis import response_monomials
-from bayescal.model.components import rolloff as roll
 from bayescal.model.components.base import Component
 from bayescal.model.components.priors import guide_inputs, pooled_normal, scale_prior
 
