@@ -71,6 +71,17 @@ def numerics() -> Iterator[None]:
 
     Re-entrant and shared by threads: nested and concurrent scopes switch the settings on once,
     and the last one to leave puts them back.
+
+    Examples
+    --------
+    >>> import jax
+    >>> import bayescal as bc
+    >>> before = jax.config.jax_enable_x64
+    >>> with bc.numerics():  # float64 inside the block, for your own JAX code beside bayescal's
+    ...     jax.numpy.zeros(1).dtype
+    dtype('float64')
+    >>> jax.config.jax_enable_x64 == before  # restored after it
+    True
     """
     global _DEPTH, _OWN_CACHE
     with _LOCK:

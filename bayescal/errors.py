@@ -20,7 +20,17 @@ __all__ = [
 
 
 class BayescalError(Exception):
-    """Base class of every bayescal error."""
+    """Base class of every bayescal error.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> try:
+    ...     bc.load_spec("seed00")
+    ... except bc.BayescalError as err:  # every error of bayescal's own; SpecError here
+    ...     print(type(err).__name__, "-", err)
+    SpecError - no such model spec (TOML): seed00; did you mean 'seed000' (a shipped example; ...)?
+    """
 
 
 class TableError(BayescalError, ValueError):
@@ -33,6 +43,12 @@ class TableError(BayescalError, ValueError):
         is ``row + 1``), or ``None`` when the problem is not tied to one row.
     column : str or None
         Offending column, or ``None``.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> print(bc.TableError("expected a number", row=3, column="dn_mean"))
+    row 3, column 'dn_mean': expected a number
     """
 
     def __init__(self, message: str, *, row: int | None = None, column: str | None = None):
@@ -48,7 +64,14 @@ class TableError(BayescalError, ValueError):
 
 
 class SpecError(BayescalError, ValueError):
-    """A model specification or design is malformed (names the key at fault)."""
+    """A model specification or design is malformed (names the key at fault).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> issubclass(bc.SpecError, ValueError)  # a bad value, caught as one by code that knows nothing of bayescal
+    True
+    """
 
 
 class OutputError(BayescalError, ValueError):
@@ -60,7 +83,14 @@ class PosteriorError(BayescalError, ValueError):
 
 
 class FitFailedError(BayescalError, RuntimeError):
-    """Raised when a fit's diagnostics fail and the caller asked for strictness."""
+    """Raised when a fit's diagnostics fail and the caller asked for strictness.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> issubclass(bc.FitFailedError, bc.BayescalError)  # raised by fit(..., strict=True); else a warning
+    True
+    """
 
 
 class MissingExtraError(BayescalError, ImportError):
@@ -68,7 +98,17 @@ class MissingExtraError(BayescalError, ImportError):
 
 
 class FitFailedWarning(UserWarning):
-    """Warned when a fit's diagnostics fail (divergences, R-hat, ESS)."""
+    """Warned when a fit's diagnostics fail (divergences, R-hat, ESS).
+
+    Examples
+    --------
+    >>> import warnings
+    >>> import bayescal as bc
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("error", bc.FitFailedWarning)  # a script that must stop on a failed fit
+    ...     issubclass(bc.FitFailedWarning, UserWarning)
+    True
+    """
 
 
 #: the optional packages and the extra of ``pyproject.toml`` that installs each

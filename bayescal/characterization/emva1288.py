@@ -222,7 +222,15 @@ def _ranges(c: pd.DataFrame) -> dict:
 
 
 def standard_method(steps: Steps) -> tuple[dict, dict]:
-    """EMVA 1288 point estimates (our implementation of the standard's formulas) and the index ranges."""
+    """EMVA 1288 point estimates (our implementation of the standard's formulas) and the index ranges.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> estimates, _ = bc.standard_method(bc.load_steps("emva"))  # the real CCD of reference set 001
+    >>> round(estimates["K"], 3)  # the system gain, DN per electron
+    0.28
+    """
     c = _aligned(steps)
     _below_full_scale(c, steps)
     r = _ranges(c)

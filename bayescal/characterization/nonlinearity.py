@@ -91,6 +91,14 @@ def simulate_curves(
     ``b``, ``c`` are per DN (the tests use values like ``0.1 / full_scale``).
     Each step averages ``n_frames`` frames (temporal noise shrinks), subtracts
     dark, and measures the spatial mean and std over ``n_pixels`` pixels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> curves = bc.simulate_curves("linear", np.linspace(0.05, 0.9, 10), seed=0)
+    >>> type(curves).__name__
+    'NonlinearityCurves'
     """
     if model not in MODELS:
         raise TableError(f"unknown model '{model}'; expected one of {MODELS}")
@@ -218,6 +226,16 @@ def patent_baseline(curves: NonlinearityCurves, alpha: float = 0.01) -> dict:
     significant at ``alpha``?  Returns the classification and both p-values:
     ``linear``, ``dn_v`` (nonlinear response, flat PRNU) or ``v_q`` (falling
     PRNU; "possibly with DN/V" -- the procedure cannot tell ``both`` apart).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> steps = np.linspace(0.05, 0.9, 10)
+    >>> bc.patent_baseline(bc.simulate_curves("dn_v", steps, b=0.1 / 4095, seed=0))["classification"]
+    'dn_v'
+    >>> bc.patent_baseline(bc.simulate_curves("linear", steps, seed=0))["classification"]
+    'linear'
     """
     c = curves
     w = 1 / c.mean_se

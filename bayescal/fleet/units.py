@@ -85,12 +85,32 @@ def load_fleet_table(path: str | os.PathLike) -> FleetTable:
         Naming the row and column: no ``camera`` column, a ``campaign`` column
         without one, a date that does not parse, a single camera, a camera
         with no illuminated rows, or any error of an ordinary table.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import bayescal as bc
+    >>> design = bc.FleetDesign(n_cameras=2, campaigns=("2024-03-01", "2025-03-01"), n_pixels=8, n_frames=2)
+    >>> path = os.path.join(tempfile.mkdtemp(), "fleet.csv")
+    >>> bc.simulate_fleet(design, seed=1)[0].to_csv(path, index=False)
+    >>> bc.load_fleet_table(path).cameras
+    ('SN001', 'SN002')
     """
     return fleet_from_frame(read_frame(path), source=str(path))
 
 
 def fleet_from_frame(df: pd.DataFrame, *, source: str = "<frame>") -> FleetTable:
-    """Validate a raw fleet frame (see :func:`load_fleet_table`)."""
+    """Validate a raw fleet frame (see :func:`load_fleet_table`).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> design = bc.FleetDesign(n_cameras=2, campaigns=("2024-03-01", "2025-03-01"), n_pixels=8, n_frames=2)
+    >>> table, _ = bc.simulate_fleet(design, seed=1)
+    >>> fleet = bc.fleet_from_frame(table, source="fleet.csv")
+    >>> fleet.cameras, len(fleet.units)  # a unit: one camera in one campaign
+    (('SN001', 'SN002'), 4)
+    """
     df = df.reset_index(drop=True)  # rows by position: a filtered frame keeps its labels, which are not positions
     df.columns = [str(c).strip() for c in df.columns]
     if len(df) == 0:

@@ -71,6 +71,13 @@ class Truth:
     effects : dict
         Optional effect (spec section name) -> its true parameters, read by the effect's
         ``truth`` (``[truth.effects.responsivity] coefficient_per_c = 0.003``).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> truth = bc.load_design("seed000").truth
+    >>> truth.response["G"]  # A1 (DN per W m^-2 sr^-1) and A2 of the simulated camera's green channel
+    (30.18, -0.003)
     """
 
     response: dict[str, tuple[float, ...]]
@@ -127,7 +134,15 @@ def _within(values, limit: str, key: str) -> None:
 
 @dataclass(frozen=True)
 class Design:
-    """What is measured: channels, sphere levels, settings blocks and dark settings."""
+    """What is measured: channels, sphere levels, settings blocks and dark settings.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> design = bc.load_design("seed000")  # the seed 000 Bayer CCD's campaign
+    >>> design.channels, len(design.levels)
+    (('R', 'G', 'B'), 12)
+    """
 
     channels: tuple[str, ...]
     levels: tuple[float, ...]

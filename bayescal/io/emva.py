@@ -53,6 +53,13 @@ class Steps:
         ``spatial_var_bright``, ``spatial_var_dark``, ``temporal_var_bright``,
         ``temporal_var_dark``, ``mean_bright``, ``mean_dark``, ``n_images``, ``photons``, and where the
         stacks were read as images, their mean images ``image_bright`` and ``image_dark`` (DN, 2-D).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> steps = bc.load_steps("emva")
+    >>> steps.bits, len(steps.bright), len(steps.dark)
+    (12, 50, 50)
     """
 
     bright: pd.DataFrame

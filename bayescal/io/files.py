@@ -54,6 +54,17 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 
     A missing, empty, truncated or mislabelled file raises :class:`~bayescal.errors.TableError`
     naming the file and what it holds, never the decoder's own exception.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> path = os.path.join(tempfile.mkdtemp(), "frame.npy")
+    >>> np.save(path, np.arange(6, dtype=np.uint16).reshape(2, 3))
+    >>> bc.read_image(path)
+    array([[0, 1, 2],
+           [3, 4, 5]], dtype=uint16)
     """
     import numpy as np
 

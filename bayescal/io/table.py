@@ -74,6 +74,20 @@ class MeasurementTable:
         pupil radiance, seed 002 focal-plane irradiance).
     source : str
         Where the table came from (for error messages and provenance).
+
+    Examples
+    --------
+    >>> import pandas as pd
+    >>> import bayescal as bc
+    >>> frame = pd.DataFrame({"channel": ["G"] * 3, "exposure_s": [0.004] * 3, "gain": [1.0] * 3,
+    ...                       "radiance": [0.0, 5.0, 10.0], "dn_mean": [45.2, 195.1, 344.8]})
+    >>> table = bc.MeasurementTable.from_frame(frame, source="bench.csv")
+    >>> table.stimulus, len(table.frame)
+    ('radiance', 3)
+    >>> bc.MeasurementTable.from_frame(frame.assign(dn_mean=["45", "x", "1"]), source="bench.csv")
+    Traceback (most recent call last):
+    ...
+    bayescal.errors.TableError: row 2, column 'dn_mean': 'x' is not a number
     """
 
     frame: pd.DataFrame
@@ -129,6 +143,17 @@ def load_table(path: str | os.PathLike) -> MeasurementTable:
     ------
     TableError
         Naming the row and column of the first problem found.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import pandas as pd
+    >>> import bayescal as bc
+    >>> path = os.path.join(tempfile.mkdtemp(), "bench.csv")
+    >>> pd.DataFrame({"channel": ["G", "G"], "exposure_s": [0.004, 0.004], "gain": [1.0, 1.0],
+    ...               "radiance": [0.0, 10.0], "dn_mean": [45.2, 344.8]}).to_csv(path, index=False)
+    >>> len(bc.load_table(path).frame)
+    2
     """
     return MeasurementTable.from_frame(read_frame(path), source=str(path))
 

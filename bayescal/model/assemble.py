@@ -156,7 +156,16 @@ def _jnp():
 
 @dataclass(frozen=True)
 class CalibrationModel:
-    """A spec, a prepared dataset and the assembled numpyro model."""
+    """A spec, a prepared dataset and the assembled numpyro model.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> spec = bc.load_spec("seed000")
+    >>> model = bc.build_model(bc.simulate(spec, bc.load_design("seed000"), seed=1).table, spec)
+    >>> model.spec.name == spec.name, len(model.table.frame)
+    (True, 192)
+    """
 
     spec: ModelSpec
     table: MeasurementTable
@@ -184,7 +193,17 @@ def resolve_for_table(spec: ModelSpec, table: MeasurementTable) -> ModelSpec:
 
 
 def build_model(table: MeasurementTable, spec: ModelSpec) -> CalibrationModel:
-    """Validate ``table`` against ``spec`` and assemble the model."""
+    """Validate ``table`` against ``spec`` and assemble the model.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> spec = bc.load_spec("seed000")
+    >>> sim = bc.simulate(spec, bc.load_design("seed000"), seed=1)
+    >>> model = bc.build_model(sim.table, spec)
+    >>> model.layout.channels
+    ('R', 'G', 'B')
+    """
     spec = resolve_for_table(spec, table)
     data, layout = prepare(table, spec)
     parts = Parts.from_spec(spec, layout, np.asarray(data.level_sigma), table.frame)

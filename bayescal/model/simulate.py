@@ -36,7 +36,15 @@ __all__ = ["simulate", "Simulation"]
 
 @dataclass(frozen=True)
 class Simulation:
-    """A simulated table and the realised truth (sphere errors drawn for this dataset)."""
+    """A simulated table and the realised truth (sphere errors drawn for this dataset).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> sim = bc.simulate(bc.load_spec("seed000"), bc.load_design("seed000"), seed=1)
+    >>> len(sim.table.frame), round(sim.sphere_scale, 4)  # the rows, and this campaign's drawn sphere error
+    (192, 1.0104)
+    """
 
     table: MeasurementTable
     truth: Truth

@@ -58,6 +58,12 @@ class Reference:
         The reference programmable gain factor.
     tdi_stages : float
         The reference number of TDI stages M (1 for an area sensor).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> bc.Reference(0.004)  # 4 ms at unit gain, no TDI: the setting the coefficients refer to
+    Reference(exposure_s=0.004, gain=1.0, tdi_stages=1.0)
     """
 
     exposure_s: float
@@ -155,6 +161,15 @@ class ModelSpec:
     sections : tuple of (str, section)
         The sections that packages above the model own (:func:`section_names`: ``[fleet]``), as given;
         :meth:`section` reads one (its defaults where not given), ``spec.fleet`` the fleet's.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> spec = bc.load_spec("seed000")
+    >>> spec.bits, spec.response.order
+    (12, 2)
+    >>> spec.replace(response={"order": 1}).response.order  # a changed copy; the spec itself is unchanged
+    1
     """
 
     name: str

@@ -57,7 +57,17 @@ __all__ = ["Calibration", "CalibratedRange"]
 
 @dataclass(frozen=True)
 class CalibratedRange:
-    """What the calibration measured; settings outside it are extrapolations."""
+    """What the calibration measured; settings outside it are extrapolations.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> measured = bc.CalibratedRange(exposure_s=(0.002, 0.01), gains=(1.0, 2.0))
+    >>> measured.flags(bc.Setting(0.02))
+    ['exposure 0.02 s outside the 0.002-0.01 s measured with light']
+    >>> measured.flags(bc.Setting(0.005, 2.0))
+    []
+    """
 
     exposure_s: tuple[float, float] = (0.0, np.inf)
     gains: tuple[float, ...] = ()

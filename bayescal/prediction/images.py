@@ -52,6 +52,15 @@ def invert_image(
     Exactly one of ``cfa`` (2-D Bayer mosaic), ``channel`` (2-D single
     channel) or ``channels`` (3-D ``(H, W, C)`` stack, one name per plane)
     says which channel each pixel belongs to.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> cal = bc.Calibration.from_coefficients({"G": [45.0, 30.0]}, reference=bc.Reference(0.004), bits=12)
+    >>> radiance = bc.invert_image(cal, np.full((2, 2), 645.0), bc.Setting(0.008), channel="G")
+    >>> radiance["median"].dtype, round(float(radiance["median"].max()), 3), radiance.attrs["unit"]
+    (dtype('float32'), 10.004, 'W m^-2 sr^-1')
     """
     image = np.asarray(image)
     views = channel_views(image, cfa=cfa, channel=channel, channels=channels)

@@ -71,6 +71,15 @@ class Inversion:
         below dark); see :data:`BOUND_NAMES`.
     extrapolated : array of bool
         The median lies beyond the largest calibrated signal.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> cal = bc.Calibration.from_coefficients({"G": [45.0, 30.0]}, reference=bc.Reference(0.004), bits=12)
+    >>> inversion = bc.invert(cal, [645.0], "G", bc.Setting(0.008))
+    >>> row = inversion.to_frame().iloc[0]
+    >>> round(float(row["median"]), 3), row["bound"]
+    (10.004, 'two-sided')
     """
 
     dn: np.ndarray
@@ -134,6 +143,15 @@ def radiance_draws(
     no measurement noise (the expected DN is inverted).  ``relative`` uses
     the coefficients relative to the sphere's scale (no common-scale
     uncertainty).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> cal = bc.Calibration.from_coefficients({"G": [45.0, 30.0]}, reference=bc.Reference(0.004), bits=12)
+    >>> draws = bc.radiance_draws(cal, "G", np.array([645.0]), bc.Setting(0.008))
+    >>> draws.shape, round(float(np.median(draws)), 3)  # (draws, readings); one draw of published coefficients
+    ((1, 1), 10.0)
     """
     dn = np.asarray(dn, dtype=float)[:, None]
     coef = cal.coefficients(channel, setting, relative)

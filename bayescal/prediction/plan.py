@@ -62,6 +62,14 @@ class Plan:
     dropped : pandas.DataFrame
         The settings asked for that were not ranked, each with why (exposure_s, gain, tdi_stages, why):
         a gain the calibration has no dark level for, or an extrapolation where none was allowed.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> cal = bc.Calibration.from_coefficients({"G": [45.0, 30.0]}, reference=bc.Reference(0.004), bits=12)
+    >>> plan = bc.plan_exposure(cal, "G", stimulus=10.0, exposures=[0.004, 0.016])
+    >>> plan.table[["exposure_s", "p_in_window"]].values.tolist()  # best first
+    [[0.016, 1.0], [0.004, 0.0]]
     """
 
     table: pd.DataFrame
@@ -105,6 +113,14 @@ def plan_exposure(
     stimulus posterior is inverted with the reading's noise) or as a known
     ``stimulus``.  ``n_avg`` is the number of pixels x frames averaged in
     the readings (both the current one and the next).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> cal = bc.Calibration.from_coefficients({"G": [45.0, 30.0]}, reference=bc.Reference(0.004), bits=12)
+    >>> plan = bc.plan_exposure(cal, "G", stimulus=10.0, exposures=[0.002, 0.004, 0.008, 0.016])
+    >>> plan.window, plan.best.exposure_s  # the DN window asked for, the setting most likely to land in it
+    ((1080.0, 1920.0), 0.016)
     """
     if (dn is None) == (stimulus is None):
         raise SpecError("give the scene as dn= (with current=) or as stimulus=, not both")

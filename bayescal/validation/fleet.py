@@ -41,6 +41,13 @@ class FleetDesign:
     default); ``brief``: cameras measured with only ``brief_levels`` levels (a unit that
     came back from the field for a quick check); ``absent``: (camera, campaign) pairs not
     measured.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> design = bc.FleetDesign(n_cameras=5)  # the default campaigns, another fleet size
+    >>> design.n_cameras, len(design.campaigns)
+    (5, 3)
     """
 
     n_cameras: int = 20
@@ -173,6 +180,14 @@ def simulate_fleet(design: FleetDesign | None = None, seed: int = 0) -> tuple[pd
     The truth has one row per (camera, campaign, channel): ``gain`` (true ``A1``, DN per
     W m^-2 sr^-1 at the reference setting), ``offset`` (``A0``, DN), ``compression``
     (``A2``), and the campaign's ``sphere_scale``.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> design = bc.FleetDesign(n_cameras=2, campaigns=("2024-03-01", "2025-03-01"), n_pixels=8, n_frames=2)
+    >>> table, truth = bc.simulate_fleet(design, seed=1)
+    >>> sorted(table["camera"].unique()), sorted(truth["campaign"].unique())
+    (['SN001', 'SN002'], ['2024-03-01', '2025-03-01'])
     """
     d = design or FleetDesign()
     rng = np.random.default_rng(seed)
