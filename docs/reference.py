@@ -62,8 +62,19 @@ def api_page() -> str:
     for heading, members in sections.items():
         if members:
             out.append(f"## {heading}\n")
-            out += [f"::: bayescal.{name}\n" for name in members]
+            out += [f"::: bayescal.{name}\n" + _inherited(getattr(bayescal, name)) for name in members]
     return "\n".join(out)
+
+
+def _inherited(obj) -> str:
+    """The options that show a class's members from a base of the package's own (a ``FleetFit``'s
+    questions are its base's, :class:`bayescal.fleet.queries.FleetQueries`); none for anything else."""
+    import inspect
+
+    own = inspect.isclass(obj) and any(
+        b.__module__.startswith("bayescal.") and not issubclass(b, BaseException) for b in obj.__mro__[1:]
+    )
+    return "    options:\n      inherited_members: true\n" if own else ""
 
 
 SPEC_HEAD = """# Spec reference

@@ -81,8 +81,9 @@ class FitSummary:
         return out
 
     @classmethod
-    def from_json(cls, data: Any, where: str | Path = "summary.json") -> FitSummary:
-        """The summary of a parsed ``summary.json`` at ``where``, every key a reader relies on checked.
+    def from_json(cls, data: Any, where: str | Path = "a fit's summary") -> FitSummary:
+        """The summary of a parsed ``summary.json`` (read from ``where``), every key a reader relies on
+        checked.
 
         Raises
         ------
