@@ -35,14 +35,23 @@ def _run(cwd: Path, line: str) -> None:
     assert proc.returncode == 0, f"{line}\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
 
 
-def test_readme_commands_run_from_any_folder(tmp_path):
+def test_readme_commands_run_from_any_folder(tmp_path, monkeypatch, capsys):
+    """The README's commands, in this process from a folder outside the repository (the wheel's slow test
+    runs them as a newcomer would, by the installed ``bayescal`` of a clean environment)."""
+    from bayescal.cli import main
+
     blocks = _blocks(ROOT / "README.md", marked=False)
     setup = [b for b in blocks if any(line.startswith("bash .ci/setup") for line in b)]
     assert len(setup) == 2  # the two commands a newcomer needs (run by CI itself)
     commands = [line for b in blocks if b not in setup for line in b]
     assert len(commands) >= 5
+    monkeypatch.chdir(tmp_path)
     for line in commands:
-        _run(tmp_path, line)
+        args = shlex.split(line)
+        assert args[0] == "bayescal", line
+        rc = main(args[1:])
+        said = capsys.readouterr()
+        assert rc == 0 and "Traceback" not in said.err, f"{line}\n{said.out[-2000:]}\n{said.err[-2000:]}"
     assert (tmp_path / "fit" / "report.html").is_file() and (tmp_path / "ccd" / "characterization.json").is_file()
 
 
