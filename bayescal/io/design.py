@@ -64,6 +64,8 @@ class Truth:
         Offsets scale with gain / reference gain (seed 002 eq. 12).
     channel_offset : dict
         Channel -> extra offset in DN (seed 000: small).
+    channel_dark_slope : dict
+        Channel -> extra dark slope in DN/s (a channel read through its own output).
     sphere_scale : float or None
         True/nominal radiance scale; None draws ``exp(N(0, common_rel))``.
     level_rel : float
@@ -85,6 +87,7 @@ class Truth:
     dark_slope: dict[float, float] = field(default_factory=dict)
     dark_proportional: bool = False
     channel_offset: dict[str, float] = field(default_factory=dict)
+    channel_dark_slope: dict[str, float] = field(default_factory=dict)
     read_noise_dn: float = 2.0
     conversion_gain: float = 0.1
     excess_dn: float = 0.0
@@ -112,6 +115,7 @@ _TRUTH_LIMITS = {
     "dark_offset": "signal_dn",
     "dark_slope": "finite",
     "channel_offset": "signal_dn",
+    "channel_dark_slope": "finite",
     "read_noise_dn": "noise_dn",
     "conversion_gain": "positive",
     "excess_dn": "noise_dn",

@@ -214,6 +214,7 @@ def _camera(truth: Truth, spec: ModelSpec, rows: pd.DataFrame, stimulus: np.ndar
         warm = Dark.doubling(np.where(np.isfinite(temp), temp - truth.temperature_ref_c, 0.0), truth.dark_doubling_c)
     offset, slope = _dark(truth, g, spec)
     offset = offset + np.array([truth.channel_offset.get(c, 0.0) for c in ch])
+    slope = slope + np.array([truth.channel_dark_slope.get(c, 0.0) for c in ch])
     dark = Dark.level(offset, slope, t, g_rel if truth.dark_proportional else 1.0, warm)
     u = effective_stimulus(stimulus, t, g, m, spec)
     expected = reading(u, (factor,), lambda x: Response.forward(coef, x), (dark, added))

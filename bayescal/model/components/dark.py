@@ -1,4 +1,5 @@
-"""Offset and dark signal: per gain setting (or proportional to gain), linear in exposure.
+"""Offset and dark signal: per gain setting (or proportional to gain), linear in exposure (the slope
+shared by the channels, or each channel's own for a sensor read through several outputs).
 
 Physics: seed 000 section 5.1 (about 50 DN at gain step 1, over 450 DN at step 4; nearly flat
 over 2.7-10 ms; channel colour barely matters), seed 002 section 4.1 (dark roughly linear in
@@ -64,6 +65,10 @@ class DarkSpec:
         frames were taken at one exposure, or whose dark current is subtracted on the chip.
     temperature_ref_c : float
         The temperature (degC) the dark current's doubling refers to: ``slope(T_ref)`` is reported.
+    slope_per_channel : bool
+        Each channel its own dark slope (a sensor read through several outputs, each amplifier with its
+        own DN per electron, so one dark current reads as different DN/s per channel); off: one slope per
+        gain, shared by every channel.
     """
 
     gain_dependence: Literal["per_setting", "proportional"] = "per_setting"
@@ -78,6 +83,7 @@ class DarkSpec:
     slope_prior_sd: float = 0.05
     drift: Literal[True, False, "auto", "order"] = "auto"
     drift_prior_dn: float = 5.0
+    slope_per_channel: bool = False
 
 
 @dataclass(frozen=True)
@@ -89,6 +95,7 @@ class Dark(Component):
     sites = {
         "b0": ("channel", "gain_setting"),
         "b1": ("gain_setting",),
+        "b1_c": ("channel", "gain_setting"),
         "b0_mu": ("gain_setting",),
         "b0_tau": (),
         "b0_w": ("channel", "gain_setting"),
@@ -101,6 +108,8 @@ class Dark(Component):
         "dark_offset_ref": ("channel",),
         "dark_slope": ("gain_setting",),
         "dark_slope_ref": (),
+        "dark_slope_channel": ("channel", "gain_setting"),
+        "dark_slope_channel_ref": ("channel",),
         "doubling_c": (),
         "dark_drift_dn": (),
     }
@@ -158,9 +167,13 @@ class Dark(Component):
         column = 0 if self.proportional else data.gset
         gain_factor = data.g_rel if self.proportional else 1.0
         slope, warm = 0.0, 1.0
-        if self.spec.exposure_slope:
+        if self.spec.exposure_slope and self.spec.slope_per_channel:
+            b1c = numpyro.sample("b1_c", dist.Normal(0.0, self.spec.slope_prior_sd).expand([c, g]).to_event(2))
+            slope = b1c[data.channel, column]
+        elif self.spec.exposure_slope:
             b1 = numpyro.sample("b1", dist.Normal(0.0, self.spec.slope_prior_sd).expand([g]).to_event(1))
             slope = b1[column]
+        if self.spec.exposure_slope:
             if self.spec.temperature:  # dark current doubles every T_d degC (seed 002)
                 t_d = numpyro.sample("T_d", dist.LogNormal(jnp.log(self.spec.doubling_c), self.spec.doubling_rel_sd))
                 warm = self.doubling(data.temp, t_d, jnp)
@@ -187,15 +200,17 @@ class Dark(Component):
         """
         layout = ctx.layout
         b0 = draws["b0"] * layout.dn_scale
-        slope = draws["b1"] * layout.dn_scale / layout.t_scale if self.spec.exposure_slope else None
+        site = "b1_c" if self.spec.slope_per_channel else "b1"
+        slope = draws[site] * layout.dn_scale / layout.t_scale if self.spec.exposure_slope else None
+        name = "dark_slope_channel" if self.spec.slope_per_channel else "dark_slope"
         if self.proportional:
             out = {"dark_offset_ref": b0[..., 0]}
             if slope is not None:
-                out["dark_slope_ref"] = slope[..., 0]
+                out[name + "_ref"] = slope[..., 0]
         else:
             out = {"dark_offset": b0}
             if slope is not None:
-                out["dark_slope"] = slope
+                out[name] = slope
         if "T_d" in draws:
             out["doubling_c"] = draws["T_d"]
         if "drift" in draws:
@@ -223,8 +238,12 @@ class Dark(Component):
             offset, gains = offset[..., None], (spec.reference.gain,)
         slope = flat("dark_slope" + suffix)
         if slope is None:
+            slope = flat("dark_slope_channel" + suffix)  # (S, C, G), or (S, C) proportional
+            if slope is not None and proportional:
+                slope = slope[..., None]
+        if slope is None:
             slope = np.zeros((offset.shape[0], offset.shape[-1]))
-        elif proportional:
+        elif proportional and slope.ndim == 2:
             slope = slope[..., None]
         return DarkTerm(
             channels=channels,
@@ -243,9 +262,9 @@ class DarkTerm:
     """The dark level's posterior as predictions use it (an
     :class:`~bayescal.model.components.base.OffsetTerm`): :meth:`Dark.level` per draw at a setting.
 
-    ``offset_dn`` ``(S, C, G)`` and ``slope_dn_s`` ``(S, G)`` per dark column, whose gains are
-    ``gains`` (one column at the reference gain, scaling with ``g / g_ref``, when ``proportional``);
-    ``doubling_c`` ``(S,)`` the dark current's doubling temperature (None: no temperature law).
+    ``offset_dn`` ``(S, C, G)`` and ``slope_dn_s`` ``(S, G)`` (``(S, C, G)``: a slope per channel) per dark
+    column, whose gains are ``gains`` (one column at the reference gain, scaling with ``g / g_ref``, when
+    ``proportional``); ``doubling_c`` ``(S,)`` the dark current's doubling temperature (None: no temperature law).
     """
 
     channels: tuple[str, ...]
@@ -278,7 +297,8 @@ class DarkTerm:
         warm = 1.0
         if self.doubling_c is not None and setting.temperature_c is not None:
             warm = Dark.doubling(setting.temperature_c - self.temperature_ref_c, self.doubling_c)
-        offset, slope = self.offset_dn[:, c, column], self.slope_dn_s[:, column]
+        offset = self.offset_dn[:, c, column]
+        slope = self.slope_dn_s[:, c, column] if self.slope_dn_s.ndim == 3 else self.slope_dn_s[:, column]
         return Dark.level(offset, slope, setting.exposure_s, gain_factor, warm)
 
     def flags(self, setting: Any) -> list[str]:
