@@ -346,11 +346,19 @@ def write_emva_stacks(
         exposure, images of another shape than the first, or values outside
         the ADC's range.
     """
-    from bayescal.io.emva import ImageGroup, read_groups
+    from bayescal.io.emva import read_groups
+    from bayescal.io.outputs import staged_directory
 
     bits, groups = read_groups(source)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    with staged_directory(out_dir, kind="stacks") as stage:  # the set whole, or nothing
+        _stacks(groups, bits, stage.root, source, max_level, progress)
+    return Path(out_dir)
+
+
+def _stacks(groups, bits: int, out: Path, source, max_level: float, progress) -> None:
+    """The stacks and manifest of :func:`write_emva_stacks`, into the staged folder ``out``."""
+    from bayescal.io.emva import ImageGroup
+
     full = 2**bits - 1
     dtype = np.uint8 if bits <= 8 else np.uint16 if bits <= 16 else np.uint32
 
@@ -395,7 +403,6 @@ def write_emva_stacks(
     if not rows:
         raise TableError(f"{source}: every bright group is above {max_level:.0%} of full scale; nothing to map")
     pd.DataFrame(rows).to_csv(out / MANIFEST, index=False)
-    return out
 
 
 def block_statistics(block, xp=np):
