@@ -81,15 +81,14 @@ def test_the_wheel_runs_the_demo_in_a_clean_environment(env_dir, tmp_path):
 
 @pytest.mark.parametrize("page", ["README.md", *(f"docs/{g}" for g in GUIDES)])
 def test_a_newcomer_runs_the_readme_and_every_guide_from_the_wheel(env_dir, tmp_path, page):
-    """Every command of the README (after its set-up) and of each guide's runnable block, as written, by the
+    """Every command of the README (after its set-up) and of each guide's runnable blocks, as written, by the
     installed ``bayescal`` of a clean environment, in a folder outside the repository: each ends in exit 0
     and writes what the page says it writes."""
     path = ROOT / page
     blocks = _blocks(path, marked=page != "README.md")
     if page == "README.md":  # the set-up lines are the clone's; the wheel stands in for them here
         blocks = [b for b in blocks if not any(line.startswith("bash .ci/setup") for line in b)]
-    run = blocks if page == "README.md" else blocks[:1]  # a guide's first runnable block, as the clone's test
-    lines = [line for block in run for line in block]
+    lines = [line for block in blocks for line in block]  # every runnable block, in the page's order
     assert lines, page
     lab = tmp_path / "lab"
     lab.mkdir()
