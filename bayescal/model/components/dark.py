@@ -236,15 +236,14 @@ class Dark(Component):
         assert offset is not None, "a calibration's draws hold the dark offsets"
         if proportional:
             offset, gains = offset[..., None], (spec.reference.gain,)
+        # shared: (S, G), or (S,) proportional; per channel: (S, C, G), or (S, C) proportional
         slope = flat("dark_slope" + suffix)
         if slope is None:
-            slope = flat("dark_slope_channel" + suffix)  # (S, C, G), or (S, C) proportional
-            if slope is not None and proportional:
-                slope = slope[..., None]
+            slope = flat("dark_slope_channel" + suffix)
         if slope is None:
             slope = np.zeros((offset.shape[0], offset.shape[-1]))
-        elif proportional and slope.ndim == 2:
-            slope = slope[..., None]
+        elif proportional:
+            slope = slope[..., None]  # the one dark column, at the reference gain
         return DarkTerm(
             channels=channels,
             offset_dn=offset,
