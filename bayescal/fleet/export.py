@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import tomllib
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,7 @@ from bayescal.errors import PosteriorError
 from bayescal.fitting.result import coefficients_at_reference, parameter_records, parameter_table, records
 from bayescal.fleet.posterior import FleetFit
 from bayescal.fleet.store import safe_name
+from bayescal.inference.diagnostics import Diagnostics
 from bayescal.io.fit_folder import POSTERIOR, SUMMARY, FitFolder
 from bayescal.io.summary import FitSummary
 from bayescal.model.physical import reported_from_pooled
@@ -94,49 +94,51 @@ def write_calibration(
     when = "its last campaign" if date is None else str(date)
     tree.attrs["fleet_source"] = f"{fleet_dir} camera={label} date={when} template={source} seed={seed}"
     spec = ModelSpec.from_dict(tomllib.loads(tree.attrs["spec_toml"]), source=str(path))
-    summary = _summary(fleet, FitFolder.at(path.parent, "a fleet's export").summary, post, spec, seed)
-    summary = replace(
-        summary,
-        source={
-            "fleet": str(fleet_dir),
-            "camera": camera,
-            "date": None if date is None else str(date),
-            "template": source,
-            "note": "gain, offset and nonlinearity from the fleet hierarchy (absolute: the sphere's scale "
-            "folded in by the fleet); dark slopes, setting factors and noise from the template camera's fit; "
-            "the least-squares baseline is the template camera's, at its last campaign",
-        },
-    )
+    source_of = {
+        "fleet": str(fleet_dir),
+        "camera": camera,
+        "date": None if date is None else str(date),
+        "template": source,
+        "note": "gain, offset and nonlinearity from the fleet hierarchy (absolute: the sphere's scale "
+        "folded in by the fleet); dark slopes, setting factors and noise from the template camera's fit; "
+        "the least-squares baseline is the template camera's, at its last campaign",
+    }
+    summary = _summary(fleet, FitFolder.at(path.parent, "a fleet's export").summary, post, spec, seed, source_of)
     with staged_directory(out_dir, kind="fit") as stage:
         write_netcdf(tree, stage(POSTERIOR))
         write_json_atomic(stage(SUMMARY), summary.to_json())
     return Path(out_dir)
 
 
-def _summary(fleet: FleetFit, template: FitSummary, post, spec: ModelSpec, seed: int) -> FitSummary:
+def _summary(fleet: FleetFit, template: FitSummary, post, spec: ModelSpec, seed: int, source: dict) -> FitSummary:
     """The exported calibration's summary, of the one schema every fit folder has: the fleet's verdict and
     diagnostics, the parameters of the exported posterior, and the template camera's model and
     least-squares baseline (at the reference setting, beside the exported coefficients)."""
     lsq = pd.DataFrame(template.lsq)
     channels = [str(c) for c in post["A_abs"].coords["channel"].values]
-    problems = fleet.problems
+    judged = fleet.draws.diagnostics  # divergences, R-hat and ESS of the fleet's scales
+    verdict = Diagnostics(
+        fleet.ok,
+        tuple(fleet.problems),
+        int(judged["divergences"]),
+        judged["max_rhat"],
+        judged["min_ess_bulk"],
+        judged["min_ess_tail"],
+        {k: v for k, v in judged.items() if k not in ("divergences", "max_rhat", "min_ess_bulk", "min_ess_tail")},
+    )
     return FitSummary(
         model_kind=template.model_kind,
-        status="ok" if not problems else "FAILED",
+        status="ok" if verdict.ok else "FAILED",
         backend="fleet",
         seed=seed,
         bayescal_version=__version__,
         model=template.model,
         stimulus_unit=template.stimulus_unit,
-        diagnostics={
-            "ok": not problems,
-            "verdict": "ok" if not problems else "FAILED: " + "; ".join(problems),
-            "problems": problems,
-            **fleet.draws.diagnostics,
-        },
+        diagnostics=verdict.to_dict(),
         parameters=parameter_records(parameter_table(post)),
         comparison_at_reference=records(coefficients_at_reference(post, lsq, spec, channels)),
         lsq=template.lsq,
+        source=source,
     )
 
 

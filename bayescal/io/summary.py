@@ -1,10 +1,10 @@
 """A fit folder's ``summary.json``: one typed schema that every writer and every reader shares.
 
 Three writers make it (a camera's fit, a film's fit, a camera's calibration exported from a fleet)
-and the readers (the report, the film report, ``design --after``, ``--json``) read it through
-:meth:`FitSummary.read`, which names the file and the key when one is missing or of the wrong kind,
-so a summary that one writer leaves short fails where it is read, in words, not as a ``KeyError``
-in a figure.
+and the readers (the report, the film report, ``design --after``) read it through
+:attr:`bayescal.io.fit_folder.FitFolder.summary` (:meth:`FitSummary.from_json`), which names the file
+and the key when one is missing or of the wrong kind, so a summary that one writer leaves short fails
+where it is read, in words, not as a ``KeyError`` in a figure.
 """
 
 from __future__ import annotations

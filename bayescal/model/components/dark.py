@@ -187,6 +187,7 @@ class Dark(Component):
         return (
             f"dark: {self.spec.gain_dependence}"
             + (", exposure slope" if self.spec.exposure_slope else "")
+            + (" per channel" if self.spec.exposure_slope and self.spec.slope_per_channel else "")
             + (", doubling with temperature" if self.spec.temperature else "")
             + (", drift over the run" if self.spec.drift else "")
             + (" (row order)" if self.spec.drift == "order" else "")
