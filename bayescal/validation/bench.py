@@ -86,7 +86,9 @@ class BenchCamera:
 
     ``responsivity``: DN per (W m^-2 sr^-1) at gain 1 and ``t_ref`` for small
     signals; ``compression``: DN per (W m^-2 sr^-1)^2 (a gentle quadratic);
-    dark ``offset_dn`` and ``dark_current_dn_s`` per gain step.
+    dark ``offset_dn`` and ``dark_current_dn_s`` per gain step; ``channel_dark_scale``: each channel's
+    dark current over that (a channel read through its own output, from its own region of the die;
+    missing channels: 1).
     """
 
     channels: tuple[str, ...] = ("R", "G", "B")
@@ -95,6 +97,7 @@ class BenchCamera:
     channel_offset_dn: dict = field(default_factory=lambda: {"R": 2.0, "G": -1.0, "B": 0.5})
     offset_dn: dict = field(default_factory=lambda: {1.0: 50.0, 2.0: 150.0, 3.0: 300.0, 4.0: 460.0})
     dark_current_dn_s: dict = field(default_factory=lambda: {1.0: 200.0, 2.0: 400.0, 3.0: 600.0, 4.0: 800.0})
+    channel_dark_scale: dict = field(default_factory=dict)
     t_ref: float = 0.004
     bits: int = 12
     read_noise_dn: float = 3.0
@@ -161,7 +164,8 @@ class Realisation:
         share = cam.channels.index(channel) % 3
         glow = self.departures.glow_dn_s2 * GLOW_SHARE[share] * exposure_s**2 * gain
         bias = self.departures.bias_dn_per_c * BIAS_SHARE[share] * (temperature_c - BENCH_REFERENCE_C)
-        dark = cam.offset_dn[gain] + cam.channel_offset_dn[channel] + cam.dark_current_dn_s[gain] * exposure_s
+        current = cam.dark_current_dn_s[gain] * cam.channel_dark_scale.get(channel, 1.0)
+        dark = cam.offset_dn[gain] + cam.channel_offset_dn[channel] + current * exposure_s
         return dark + glow + drift + bias
 
     def read(
