@@ -184,7 +184,9 @@ class Calibration:
         gains = tuple(float(g) for g in np.asarray(post["gain_setting"])) if "gain_setting" in post.coords else ()
         draws = {str(k): np.asarray(post[str(k)]) for k in post.data_vars}
         source = str(folder.posterior_path)
-        return cls._from_draws(spec, draws, channels, gains, frame, source, _levels(post), folder)
+        # the folder's address only: the opened posterior stays with the reader that opened it, not held open
+        address = FitFolder(folder.root, folder.posterior_path)
+        return cls._from_draws(spec, draws, channels, gains, frame, source, _levels(post), address)
 
     @classmethod
     def _from_draws(

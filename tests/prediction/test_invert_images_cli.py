@@ -215,6 +215,8 @@ def test_tables_kept_beside_the_posterior(calibrated, tmp_path, monkeypatch):
     setting = bc.Setting(0.004, 1.0)
     image = np.random.default_rng(7).integers(0, 4096, size=(20, 30), dtype=np.uint16)
     cal = bc.Calibration.load(mine)
+    assert cal.folder is not None and cal.folder.root == mine  # the tables' place: the folder it was read from
+    assert "posterior" not in vars(cal.folder)  # its address only: the opened posterior is not held open
     first = bc.invert_image(cal, image, setting, cfa="BGGR")
     written = tables.persist_tables(cal)
     assert len(written) == 3 and all(p.parent == mine for p in written)
